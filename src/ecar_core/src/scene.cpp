@@ -1,0 +1,309 @@
+#include "ecar_core/scene.h"
+
+#include <cmath>
+#include <set>
+
+#include <yaml-cpp/yaml.h>
+
+#include "ecar_core/error.h"
+
+namespace ecar {
+namespace {
+
+// Reads typed values from a YAML map and reports problems as
+// "<file>: <context>: <what>", so a user knows which key to fix.
+class Reader {
+ public:
+  Reader(const YAML::Node& node, std::string file, std::string context)
+      : node_(node), file_(std::move(file)), context_(std::move(context)) {
+    if (!node_.IsMap()) fail("expected a map of keys");
+  }
+
+  [[noreturn]] void fail(const std::string& what) const {
+    throw Error(file_ + ": " + (context_.empty() ? "" : context_ + ": ") + what);
+  }
+
+  bool has(const std::string& key) const { return static_cast<bool>(node_[key]); }
+
+  /// Rejects keys outside `allowed` (typos must not be silently ignored).
+  void allowOnly(const std::set<std::string>& allowed) const {
+    for (const auto& kv : node_) {
+      const auto key = kv.first.as<std::string>();
+      if (!allowed.count(key)) fail("unknown key '" + key + "'");
+    }
+  }
+
+  template <typename T>
+  T get(const std::string& key) const {
+    if (!has(key)) fail("missing key '" + key + "'");
+    return convert<T>(key);
+  }
+
+  template <typename T>
+  T get(const std::string& key, const T& fallback) const {
+    return has(key) ? convert<T>(key) : fallback;
+  }
+
+  double getFinite(const std::string& key, double fallback) const {
+    const double v = get<double>(key, fallback);
+    if (!std::isfinite(v)) fail("key '" + key + "' must be a finite number");
+    return v;
+  }
+
+  double getPositive(const std::string& key, double fallback) const {
+    const double v = getFinite(key, fallback);
+    if (!(v > 0)) fail("key '" + key + "' must be positive");
+    return v;
+  }
+
+  Eigen::Vector3d getPoint(const std::string& key, bool allow_2d = false) const {
+    const auto v = get<std::vector<double>>(key);
+    return toPoint(v, "key '" + key + "'", allow_2d);
+  }
+
+  Eigen::Vector3d toPoint(const std::vector<double>& v, const std::string& what,
+                          bool allow_2d) const {
+    if (!(v.size() == 3 || (allow_2d && v.size() == 2))) {
+      fail(what + " must be [x, y" + std::string(allow_2d ? "(, z)" : ", z") + "]");
+    }
+    for (double x : v) {
+      if (!std::isfinite(x)) fail(what + " has a non-finite coordinate");
+    }
+    return {v[0], v[1], v.size() == 3 ? v[2] : 0.0};
+  }
+
+  Reader child(const std::string& key) const {
+    if (!has(key)) fail("missing key '" + key + "'");
+    return Reader(node_[key], file_, join(key));
+  }
+
+  YAML::Node node(const std::string& key) const { return node_[key]; }
+  std::string join(const std::string& key) const {
+    return context_.empty() ? key : context_ + "." + key;
+  }
+  const std::string& file() const { return file_; }
+
+ private:
+  template <typename T>
+  T convert(const std::string& key) const {
+    try {
+      return node_[key].as<T>();
+    } catch (const YAML::Exception&) {
+      fail("key '" + key + "' has an invalid value");
+    }
+  }
+
+  YAML::Node node_;
+  std::string file_;
+  std::string context_;
+};
+
+AlignedBox readBox(const Reader& r) {
+  r.allowOnly({"name", "min", "max"});
+  AlignedBox box;
+  box.name = r.get<std::string>("name", "");
+  box.min = r.getPoint("min");
+  box.max = r.getPoint("max");
+  if (!(box.max.array() > box.min.array()).all()) r.fail("'max' must exceed 'min' on every axis");
+  return box;
+}
+
+std::vector<AlignedBox> readBoxes(const Reader& r, const std::string& key, bool required) {
+  std::vector<AlignedBox> boxes;
+  if (!r.has(key)) {
+    if (required) r.fail("missing key '" + key + "'");
+    return boxes;
+  }
+  const YAML::Node list = r.node(key);
+  if (!list.IsSequence()) r.fail("key '" + key + "' must be a list of boxes");
+  for (size_t i = 0; i < list.size(); ++i) {
+    boxes.push_back(
+        readBox(Reader(list[i], r.file(), r.join(key) + "[" + std::to_string(i) + "]")));
+  }
+  return boxes;
+}
+
+CameraParams readCamera(const Reader& r) {
+  r.allowOnly({"width", "height", "fx", "fy", "cx", "cy", "distortion", "fps"});
+  CameraParams c;
+  c.width = r.get<int>("width");
+  c.height = r.get<int>("height");
+  for (const char* key : {"fx", "fy", "cx", "cy"}) {
+    if (!r.has(key)) r.fail(std::string("missing key '") + key + "'");
+  }
+  c.fx = r.getPositive("fx", 0);
+  c.fy = r.getPositive("fy", 0);
+  c.cx = r.getFinite("cx", 0);
+  c.cy = r.getFinite("cy", 0);
+  c.fps = r.getPositive("fps", 30.0);
+  if (r.has("distortion")) {
+    const auto d = r.get<std::vector<double>>("distortion");
+    if (d.size() != 4 && d.size() != 5) r.fail("key 'distortion' must be [k1, k2, p1, p2(, k3)]");
+    for (size_t i = 0; i < d.size(); ++i) c.dist[i] = d[i];
+  }
+  if (c.width <= 0 || c.height <= 0) r.fail("'width' and 'height' must be positive");
+  return c;
+}
+
+TrajectorySpec readTrajectory(const Reader& r) {
+  TrajectorySpec t;
+  const auto type = r.get<std::string>("type");
+  const std::set<std::string> common = {"type",          "height",         "jitter_deg",
+                                        "bob_amplitude", "sway_amplitude", "step_frequency",
+                                        "start_pause",   "speed"};
+  auto with = [&](std::set<std::string> extra) {
+    extra.insert(common.begin(), common.end());
+    return extra;
+  };
+  t.height = r.getPositive("height", t.height);
+  t.jitter_deg = r.getFinite("jitter_deg", t.jitter_deg);
+  t.bob_amplitude = r.getFinite("bob_amplitude", t.bob_amplitude);
+  t.sway_amplitude = r.getFinite("sway_amplitude", t.sway_amplitude);
+  t.step_frequency = r.getPositive("step_frequency", t.step_frequency);
+  t.start_pause = r.getFinite("start_pause", t.start_pause);
+  t.speed = r.getPositive("speed", t.speed);
+  if (t.start_pause < 0) r.fail("key 'start_pause' must not be negative");
+  if (type == "walk") {
+    r.allowOnly(with({"waypoints", "pitch_deg"}));
+    t.type = TrajectoryType::kWalk;
+    t.pitch_deg = r.getFinite("pitch_deg", t.pitch_deg);
+    const YAML::Node list = r.node("waypoints");
+    if (!list || !list.IsSequence() || list.size() < 2) {
+      r.fail("key 'waypoints' must list at least two [x, y] points");
+    }
+    for (size_t i = 0; i < list.size(); ++i) {
+      std::vector<double> v;
+      try {
+        v = list[i].as<std::vector<double>>();
+      } catch (const YAML::Exception&) {
+        r.fail("waypoints[" + std::to_string(i) + "] must be [x, y]");
+      }
+      t.waypoints.push_back(r.toPoint(v, "waypoints[" + std::to_string(i) + "]", true));
+    }
+  } else if (type == "half_circle") {
+    r.allowOnly(with({"target", "radius", "start_angle_deg", "sweep_deg"}));
+    t.type = TrajectoryType::kHalfCircle;
+    t.target = r.getPoint("target");
+    t.radius = r.getPositive("radius", t.radius);
+    t.start_angle_deg = r.getFinite("start_angle_deg", t.start_angle_deg);
+    t.sweep_deg = r.getFinite("sweep_deg", t.sweep_deg);
+    t.speed = r.getPositive("speed", 0.4);
+  } else if (type == "shake") {
+    r.allowOnly(with({"position", "target", "duration", "shake_amplitude", "shake_amplitude_deg",
+                      "shake_frequency"}));
+    t.type = TrajectoryType::kShake;
+    t.position = r.getPoint("position");
+    t.target = r.getPoint("target");
+    t.duration = r.getPositive("duration", t.duration);
+    t.shake_amplitude = r.getFinite("shake_amplitude", t.shake_amplitude);
+    t.shake_amplitude_deg = r.getFinite("shake_amplitude_deg", t.shake_amplitude_deg);
+    t.shake_frequency = r.getPositive("shake_frequency", t.shake_frequency);
+  } else {
+    r.fail("key 'type' must be walk, half_circle or shake (got '" + type + "')");
+  }
+  return t;
+}
+
+DeviceSpec readDevice(const Reader& r, size_t index) {
+  r.allowOnly({"name", "seed", "trajectory", "odometry"});
+  DeviceSpec d;
+  d.name = r.get<std::string>("name");
+  if (d.name.empty()) r.fail("key 'name' must not be empty");
+  for (char c : d.name) {
+    if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_')) {
+      r.fail("device name '" + d.name + "' must be a ROS name: letters, digits, '_'");
+    }
+  }
+  d.seed = r.get<uint32_t>("seed", static_cast<uint32_t>(1000 + index));
+  d.trajectory = readTrajectory(r.child("trajectory"));
+  if (r.has("odometry")) {
+    const Reader o = r.child("odometry");
+    o.allowOnly({"scale_error", "position_walk", "yaw_walk_deg"});
+    d.odometry.scale_error = o.getFinite("scale_error", d.odometry.scale_error);
+    d.odometry.position_walk = o.getFinite("position_walk", d.odometry.position_walk);
+    d.odometry.yaw_walk_deg = o.getFinite("yaw_walk_deg", d.odometry.yaw_walk_deg);
+  }
+  return d;
+}
+
+}  // namespace
+
+bool Scene::isFree(const Eigen::Vector3d& p, double margin) const {
+  bool inside = false;
+  for (const auto& s : spaces) {
+    if (s.contains(p, margin)) {
+      inside = true;
+      break;
+    }
+  }
+  if (!inside) return false;
+  for (const auto& s : solids) {
+    if (s.contains(p, -margin)) return false;
+  }
+  return true;
+}
+
+const DeviceSpec& Scene::device(const std::string& device_name) const {
+  for (const auto& d : devices) {
+    if (d.name == device_name) return d;
+  }
+  std::string names;
+  for (const auto& d : devices) names += (names.empty() ? "" : ", ") + d.name;
+  throw Error(path + ": no device named '" + device_name + "' (devices: " + names + ")");
+}
+
+Scene loadScene(const std::string& path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw Error(path + ": cannot open scene file");
+  } catch (const YAML::Exception& e) {
+    throw Error(path + ": not valid YAML (line " + std::to_string(e.mark.line + 1) + ": " + e.msg +
+                ")");
+  }
+  const Reader r(root, path, "");
+  r.allowOnly({"name", "camera", "noise_sigma", "texture", "spaces", "solids", "devices"});
+  Scene scene;
+  scene.path = path;
+  scene.name = r.get<std::string>("name");
+  scene.camera = readCamera(r.child("camera"));
+  try {
+    PinholeCamera check(scene.camera);
+  } catch (const Error& e) {
+    r.fail(std::string("camera: ") + e.what());
+  }
+  scene.noise_sigma = r.getFinite("noise_sigma", scene.noise_sigma);
+  if (scene.noise_sigma < 0) r.fail("key 'noise_sigma' must not be negative");
+  if (r.has("texture")) {
+    const Reader t = r.child("texture");
+    t.allowOnly({"seed", "texel_size", "shapes_per_m2", "min_shape_size", "max_shape_size"});
+    scene.texture.seed = t.get<uint32_t>("seed", scene.texture.seed);
+    scene.texture.texel_size = t.getPositive("texel_size", scene.texture.texel_size);
+    scene.texture.shapes_per_m2 = t.getPositive("shapes_per_m2", scene.texture.shapes_per_m2);
+    scene.texture.min_shape_size = t.getPositive("min_shape_size", scene.texture.min_shape_size);
+    scene.texture.max_shape_size = t.getPositive("max_shape_size", scene.texture.max_shape_size);
+    if (scene.texture.max_shape_size < scene.texture.min_shape_size) {
+      t.fail("'max_shape_size' must not be below 'min_shape_size'");
+    }
+    if (scene.texture.texel_size < 0.001) t.fail("'texel_size' below 1 mm needs too much memory");
+  }
+  scene.spaces = readBoxes(r, "spaces", true);
+  if (scene.spaces.empty()) r.fail("key 'spaces' must list at least one box");
+  scene.solids = readBoxes(r, "solids", false);
+
+  const YAML::Node devices = root["devices"];
+  if (devices) {
+    if (!devices.IsSequence()) r.fail("key 'devices' must be a list");
+    std::set<std::string> names;
+    for (size_t i = 0; i < devices.size(); ++i) {
+      const std::string ctx = "devices[" + std::to_string(i) + "]";
+      DeviceSpec d = readDevice(Reader(devices[i], path, ctx), i);
+      if (!names.insert(d.name).second) r.fail(ctx + ": duplicate device name '" + d.name + "'");
+      scene.devices.push_back(std::move(d));
+    }
+  }
+  return scene;
+}
+
+}  // namespace ecar

@@ -1,0 +1,135 @@
+// Publishes a dataset folder (sim, TUM, KITTI, EuRoC; see ecar_core/dataset.h)
+// as one device's camera, so the rest of eCAR cannot tell it from a live device.
+//
+// Topics (relative to the node's namespace, <device> = ~device):
+//   <device>/camera/image_raw    sensor_msgs/Image, mono8 / bgr8 / mono16
+//   <device>/camera/camera_info  sensor_msgs/CameraInfo, same header as the image
+//   <device>/imu                 sensor_msgs/Imu in the camera frame: every IMU
+//                                sample up to the frame's time, published just
+//                                before the image; for datasets without IMU but
+//                                with per-frame gravity, one message per frame
+//                                whose linear_acceleration is the gravity reading
+//   <device>/odometry            geometry_msgs/PoseStamped T_o_c, frame <device>/odom
+//                                (frames that have odometry)
+//   tf <world_frame> -> <device>/camera_gt   ground truth T_w_c (frames that have it)
+//   <device>/player/finished     std_msgs/Bool, latched, true after the last frame
+// Subscribes (with ~pace_by_consumer) to <device>/frame_done, std_msgs/UInt32:
+// the index of the last frame the consumer has processed.
+//
+// Image header: stamp = ros::Time::now() at publication, seq = the frame's
+// index in the dataset, frame_id = <device>/camera. IMU samples get stamps
+// interpolated between the previous and the current image stamp by their
+// dataset time (before the first image of a pass: the image stamp minus the
+// dataset time difference), so IMU and image stamps stay ordered at any ~rate.
+#pragma once
+
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include <image_transport/image_transport.h>
+#include <ros/ros.h>
+#include <std_msgs/UInt32.h>
+#include <tf2_ros/transform_broadcaster.h>
+
+#include "ecar_core/dataset.h"
+#include "ecar_sim/conversions.h"
+
+namespace ecar_sim {
+
+/// Private parameters of the player (~name), with their defaults.
+struct DatasetPlayerConfig {
+  std::string dataset;  ///< ~dataset: the dataset folder (required)
+  ecar::DatasetFormat format = ecar::DatasetFormat::kAuto;  ///< ~format: auto|sim|tum|kitti|euroc
+  std::string camera_file;  ///< ~camera_file: camera.yaml overriding the intrinsics ("" = none)
+  std::string device = "device_0";  ///< ~device: the device's namespace, no slashes
+  std::string world_frame = "map";  ///< ~world_frame: parent frame of the ground-truth tf
+  /// ~rate: playback speed relative to the dataset stamps (1 = real time, 2 =
+  /// twice as fast); 0 publishes as fast as possible.
+  double rate = 1.0;
+  /// ~pace_by_consumer: after each frame, wait for a frame_done index >= the
+  /// frame's index (or ~ack_timeout) before the next one.
+  bool pace_by_consumer = false;
+  double ack_timeout = 2.0;  ///< ~ack_timeout, seconds, > 0
+  /// ~start_delay: seconds to wait before the first frame, after waiting up to
+  /// ~wait_subscribers seconds for a subscriber on image_raw.
+  double start_delay = 0.5;
+  double wait_subscribers = 5.0;  ///< ~wait_subscribers, seconds, >= 0
+  int first_frame = 0;            ///< ~first_frame: index of the first frame played
+  int max_frames = 0;             ///< ~max_frames: frames per pass, 0 = to the end
+  bool loop = false;              ///< ~loop: start over after the last frame
+  bool grayscale = false;         ///< ~grayscale: publish mono8 whatever the files hold
+  bool shutdown_when_done = false;  ///< ~shutdown_when_done: ros::shutdown() after the last frame
+
+  /// Throws ecar::Error naming the parameter (e.g. "~rate") of the first bad value.
+  void validate() const;
+};
+
+/// Reads every parameter above from the private node handle, then validates.
+/// Throws ecar::Error naming the parameter when one is missing (~dataset),
+/// has the wrong type or an invalid value.
+DatasetPlayerConfig loadDatasetPlayerConfig(const ros::NodeHandle& pnh);
+
+class DatasetPlayer {
+ public:
+  /// Opens the dataset and advertises the topics. Throws ecar::Error when the
+  /// config or the dataset is invalid (including ~first_frame past the end).
+  DatasetPlayer(ros::NodeHandle nh, DatasetPlayerConfig config);
+
+  /// Plays the frames (every pass when ~loop), then publishes `finished` and,
+  /// with ~shutdown_when_done, shuts the node down. Blocks; services callbacks
+  /// with ros::spinOnce() while it waits. Returns the number of frames published
+  /// (fewer than planned when ROS shut down early or images were unreadable).
+  size_t run();
+
+  const DatasetPlayerConfig& config() const { return config_; }
+  const ecar::Dataset& dataset() const { return dataset_; }
+
+ private:
+  using Clock = std::chrono::steady_clock;
+
+  /// Plays frames [begin, end) once; returns how many were published.
+  size_t playPass(size_t begin, size_t end);
+  /// Publishes frame i (image already loaded); returns its header.
+  std_msgs::Header publishFrame(size_t i, const cv::Mat& image);
+  void publishImu(size_t i, const std_msgs::Header& header);
+  /// Stamp of an IMU sample at dataset time t_imu for a frame at t_frame.
+  ros::Time imuStamp(double t_imu, double t_frame, const ros::Time& frame_stamp) const;
+
+  void waitForSubscribers();
+  /// Sleeps until `until` (servicing callbacks); false when ROS shut down.
+  bool sleepUntil(Clock::time_point until);
+  /// Waits for a frame_done >= index, at most ~ack_timeout; false on timeout.
+  bool waitForAck(uint32_t index);
+  void onFrameDone(const std_msgs::UInt32& msg);
+
+  DatasetPlayerConfig config_;
+  DeviceTopics topics_;
+  ecar::Dataset dataset_;
+  sensor_msgs::CameraInfo camera_info_;  ///< header filled per frame
+
+  ros::NodeHandle nh_;
+  image_transport::ImageTransport it_;
+  image_transport::Publisher image_pub_;
+  ros::Publisher info_pub_;
+  ros::Publisher imu_pub_;
+  ros::Publisher odom_pub_;
+  ros::Publisher finished_pub_;
+  ros::Subscriber frame_done_sub_;
+  tf2_ros::TransformBroadcaster tf_broadcaster_;
+
+  // Playback state. Single-threaded: only touched from run() and from callbacks
+  // that run inside its ros::spinOnce() calls.
+  size_t imu_cursor_ = 0;  ///< next IMU sample to publish
+  /// Wall time and dataset time that the schedule of the current pass runs from.
+  Clock::time_point anchor_wall_;
+  double anchor_t_ = 0.0;
+  /// Stamp and dataset time of the previous published frame of the pass.
+  std::optional<std::pair<ros::Time, double>> previous_;
+  /// Largest frame_done index received since the current frame was published.
+  std::optional<uint32_t> acked_;
+};
+
+}  // namespace ecar_sim
