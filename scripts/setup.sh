@@ -75,7 +75,8 @@ if ((BUILD)); then
   cd "$ROOT"
   echo "[setup] building the workspace in $ROOT/build"
   # The system Python: a pyenv/venv python3 first on PATH lacks catkin_pkg.
-  catkin_make -DPYTHON_EXECUTABLE=/usr/bin/python3 -DCMAKE_BUILD_TYPE=Release \
+  catkin_make -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 \
+    -DCMAKE_BUILD_TYPE=Release \
     -j"$(nproc)" >"$ROOT/build.log" 2>&1 || { tail -60 "$ROOT/build.log"; echo "[setup] build failed (full log: build.log)"; exit 1; }
   grep -E "warning:" "$ROOT/build.log" | sort -u | head -20 || true
   echo "[setup] build ok"

@@ -19,6 +19,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "ecar_core/error.h"
+#include "ecar_core/text.h"
 
 namespace ecar {
 
@@ -105,16 +106,9 @@ void expectAtLeastFields(const TextLine& line, size_t count, const fs::path& fil
 
 // Parses the whole of `s` as a finite double, independently of the C locale.
 double parseNumber(const std::string& s, const fs::path& file, int line, const std::string& what) {
-  const char* begin = s.data();
-  const char* end = s.data() + s.size();
-  if (begin != end && *begin == '+') ++begin;  // from_chars rejects an explicit '+'
   double v = 0.0;
-  const auto [ptr, ec] = std::from_chars(begin, end, v);
-  if (ptr != end || begin == end || (ec != std::errc() && ec != std::errc::result_out_of_range)) {
+  if (!parseDouble(s, &v)) {
     throw Error(at(file, line) + ": " + what + " '" + s + "' is not a number");
-  }
-  if (ec == std::errc::result_out_of_range) {
-    throw Error(at(file, line) + ": " + what + " '" + s + "' is out of range");
   }
   if (!std::isfinite(v)) {
     throw Error(at(file, line) + ": " + what + " '" + s + "' is not finite");
@@ -687,8 +681,10 @@ DatasetFormat Dataset::detectFormat(const std::string& dir_str) {
 Dataset Dataset::open(const std::string& dir_str, DatasetFormat format,
                       const std::string& camera_yaml_override) {
   std::error_code ec;
-  const fs::path dir = fs::absolute(fs::path(dir_str), ec).lexically_normal();
-  if (ec || !isDirectory(dir)) throw Error(dir_str + ": dataset folder does not exist");
+  // Resolve symlinks first: "pkg/../../x" must follow a symlinked package.
+  fs::path dir = fs::weakly_canonical(fs::absolute(fs::path(dir_str), ec), ec);
+  if (ec) dir = fs::absolute(fs::path(dir_str)).lexically_normal();
+  if (!isDirectory(dir)) throw Error(dir_str + ": dataset folder does not exist");
   // "a/b/" normalises to "a/b/" whose filename() is empty: drop the slash.
   const fs::path clean = dir.has_filename() ? dir : dir.parent_path();
   if (format == DatasetFormat::kAuto) format = detectFormat(clean.string());

@@ -99,8 +99,7 @@ SE3 interpolate(const SE3& a, const SE3& b, double alpha) {
   return T;
 }
 
-SE3 lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target,
-           const Eigen::Vector3d& up_w) {
+SE3 lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target, const Eigen::Vector3d& up_w) {
   Eigen::Vector3d z = (target - eye).normalized();
   Eigen::Vector3d x = z.cross(up_w);  // right = forward x up (up is -y in the image)
   if (x.norm() < 1e-9) x = z.unitOrthogonal();

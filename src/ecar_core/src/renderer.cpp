@@ -97,8 +97,8 @@ inline float sampleGray(const LevelView& L, float s, float t) {
 inline uint32_t lerpPacked(uint32_t a, uint32_t b, uint32_t w) {
   const uint32_t iw = 256 - w;
   const uint32_t rb = (((a & 0x00FF00FFu) * iw + (b & 0x00FF00FFu) * w) >> 8) & 0x00FF00FFu;
-  const uint32_t ga = ((((a >> 8) & 0x00FF00FFu) * iw + ((b >> 8) & 0x00FF00FFu) * w) >> 8) &
-                      0x00FF00FFu;
+  const uint32_t ga =
+      ((((a >> 8) & 0x00FF00FFu) * iw + ((b >> 8) & 0x00FF00FFu) * w) >> 8) & 0x00FF00FFu;
   return rb | (ga << 8);
 }
 

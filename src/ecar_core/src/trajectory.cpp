@@ -9,6 +9,7 @@
 #include <tuple>
 
 #include "ecar_core/error.h"
+#include "ecar_core/text.h"
 
 namespace ecar {
 
@@ -21,28 +22,6 @@ const char* const kTumFieldNames[kTumFields] = {"timestamp", "tx", "ty", "tz",
 // "<path>:<line>: <message>", the location format editors and compilers use.
 Error lineError(const std::string& path, size_t line_number, const std::string& message) {
   return Error(path + ":" + std::to_string(line_number) + ": " + message);
-}
-
-std::vector<std::string> splitWhitespace(const std::string& line) {
-  std::vector<std::string> fields;
-  std::istringstream in(line);
-  std::string field;
-  while (in >> field) fields.push_back(field);
-  return fields;
-}
-
-// Parses the whole of `text` as a double (locale independent). Returns false
-// when it is not a number; non-finite values are returned as parsed.
-bool parseDouble(const std::string& text, double* value) {
-  const char* begin = text.data();
-  const char* end = text.data() + text.size();
-  if (begin != end && *begin == '+') ++begin;  // from_chars rejects an explicit '+'
-  const auto [ptr, ec] = std::from_chars(begin, end, *value);
-  if (ec == std::errc::result_out_of_range && ptr == end) {
-    *value = HUGE_VAL;  // reported as non-finite by the caller
-    return true;
-  }
-  return ec == std::errc() && ptr == end;
 }
 
 StampedPose parseTumLine(const std::string& path, size_t line_number,

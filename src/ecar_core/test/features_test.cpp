@@ -34,8 +34,8 @@ TEST(FeaturesTest, OrbFindsManyWellSpreadKeypointsAlongTheCorridorWalk) {
     bool cell[6][8] = {};
     for (const auto& kp : kps) {
       ++labels[out.labels.at<uint8_t>(cvRound(kp.pt.y), cvRound(kp.pt.x))];
-      cell[static_cast<int>(kp.pt.y) * 6 / out.image.rows][static_cast<int>(kp.pt.x) * 8 /
-                                                            out.image.cols] = true;
+      cell[static_cast<int>(kp.pt.y) * 6 / out.image.rows]
+          [static_cast<int>(kp.pt.x) * 8 / out.image.cols] = true;
     }
     for (int l = 0; l < 5; ++l) per_label[l].push_back(labels[l]);
     int cells = 0;

@@ -36,7 +36,8 @@ TEST(MotionTest, CorridorWalkCoversTheCorridorAtWalkingSpeed) {
     zmin = std::min(zmin, m[i].T_w_c.translation().z());
     zmax = std::max(zmax, m[i].T_w_c.translation().z());
     if (i > 0) {
-      max_step = std::max(max_step, (m[i].T_w_c.translation() - m[i - 1].T_w_c.translation()).norm());
+      max_step =
+          std::max(max_step, (m[i].T_w_c.translation() - m[i - 1].T_w_c.translation()).norm());
     }
     EXPECT_GT(m[i].T_w_c.linear().col(2).x(), 0.8) << "camera should look along +x at " << i;
   }

@@ -71,8 +71,8 @@ TEST_F(RoomRenderTest, DepthAndLabelsMatchAnalyticIntersection) {
   ASSERT_EQ(scene_->spaces.size(), 1u);
   const AlignedBox& room = scene_->spaces[0];
   std::mt19937 rng(5);
-  std::uniform_real_distribution<double> ux(0.3, 5.7), uy(0.3, 4.7), uz(0.3, 2.4),
-      ua(-M_PI, M_PI), upitch(-1.2, 1.2);
+  std::uniform_real_distribution<double> ux(0.3, 5.7), uy(0.3, 4.7), uz(0.3, 2.4), ua(-M_PI, M_PI),
+      upitch(-1.2, 1.2);
   RenderOutput out;
   RenderOptions opt;
   int checked = 0, by_label[5] = {0, 0, 0, 0, 0};
@@ -213,7 +213,8 @@ TEST(RendererDistortionTest, DepthFollowsTheDistortedRays) {
   const SE3 T_w_c = lookAt({1.0, 2.5, 1.5}, {5.0, 2.5, 1.0});
   RenderOutput out;
   renderer.render(T_w_c, RenderOptions(), &out);
-  for (const auto& px : {Eigen::Vector2d(5, 5), Eigen::Vector2d(630, 470), Eigen::Vector2d(320, 5)}) {
+  for (const auto& px :
+       {Eigen::Vector2d(5, 5), Eigen::Vector2d(630, 470), Eigen::Vector2d(320, 5)}) {
     const Eigen::Vector3d ray = renderer.camera().unproject(px);
     const auto hit = renderer.castRay(T_w_c.translation(), T_w_c.linear() * ray);
     ASSERT_TRUE(hit.has_value());

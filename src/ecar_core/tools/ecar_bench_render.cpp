@@ -53,12 +53,18 @@ int main(int argc, char** argv) {
       }
       return argv[++i];
     };
-    if (k == "--scene") a.scene = next();
-    else if (k == "--device") a.device = next();
-    else if (k == "--frames") a.frames = std::stoi(next());
-    else if (k == "--every") a.every = std::max(1, std::stoi(next()));
-    else if (k == "--color") a.color = true;
-    else if (k == "--orb") a.orb = true;
+    if (k == "--scene")
+      a.scene = next();
+    else if (k == "--device")
+      a.device = next();
+    else if (k == "--frames")
+      a.frames = std::stoi(next());
+    else if (k == "--every")
+      a.every = std::max(1, std::stoi(next()));
+    else if (k == "--color")
+      a.color = true;
+    else if (k == "--orb")
+      a.orb = true;
     else {
       usage();
       return 2;
@@ -90,8 +96,8 @@ int main(int argc, char** argv) {
       opt.noise_seed = static_cast<uint32_t>(i);
       const auto t0 = std::chrono::steady_clock::now();
       renderer.render(motion[i].T_w_c, opt, &out);
-      ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0)
-                       .count());
+      ms.push_back(
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
       if (a.orb) {
         std::vector<cv::KeyPoint> kps;
         orb->detect(out.image, kps);
@@ -114,10 +120,11 @@ int main(int argc, char** argv) {
       auto avg = [](const std::vector<double>& v) {
         return std::accumulate(v.begin(), v.end(), 0.0) / std::max<size_t>(1, v.size());
       };
-      std::printf("ORB (1000, 1.2, 8) keypoints/frame: mean %.0f  min %.0f  | floor %.0f  wall %.0f"
-                  "  ceiling %.0f  object %.0f\n",
-                  avg(kp_total), percentile(kp_total, 0.0), avg(kp_label[1]), avg(kp_label[2]),
-                  avg(kp_label[3]), avg(kp_label[4]));
+      std::printf(
+          "ORB (1000, 1.2, 8) keypoints/frame: mean %.0f  min %.0f  | floor %.0f  wall %.0f"
+          "  ceiling %.0f  object %.0f\n",
+          avg(kp_total), percentile(kp_total, 0.0), avg(kp_label[1]), avg(kp_label[2]),
+          avg(kp_label[3]), avg(kp_label[4]));
     }
   } catch (const std::exception& e) {
     std::cerr << "ecar_bench_render: " << e.what() << "\n";

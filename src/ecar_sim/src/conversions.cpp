@@ -4,9 +4,9 @@
 #include <cmath>
 
 #include <cv_bridge/cv_bridge.h>
-#include <Eigen/Geometry>
 #include <sensor_msgs/distortion_models.h>
 #include <sensor_msgs/image_encodings.h>
+#include <Eigen/Geometry>
 
 #include "ecar_core/error.h"
 

@@ -14,10 +14,15 @@
 //   tf <world_frame> -> <device>/camera_gt   ground truth T_w_c (frames that have it)
 //   <device>/player/finished     std_msgs/Bool, latched, true after the last frame
 // Subscribes (with ~pace_by_consumer) to <device>/frame_done, std_msgs/UInt32:
-// the index of the last frame the consumer has processed.
+// the header.seq of the last image the consumer has processed.
 //
-// Image header: stamp = ros::Time::now() at publication, seq = the frame's
-// index in the dataset, frame_id = <device>/camera. IMU samples get stamps
+// Image header: stamp = ros::Time::now() at publication, frame_id =
+// <device>/camera, seq = the number of images published before this one (0, 1,
+// 2, ... over the node's life, across ~loop passes). roscpp overwrites
+// header.seq with its per-publisher counter on the wire, so seq cannot carry the
+// dataset's frame index; the player sets the same counter so that intra-process
+// (nodelet) subscribers see the same value. With ~first_frame 0 and no
+// unreadable image, seq is the frame index. IMU samples get stamps
 // interpolated between the previous and the current image stamp by their
 // dataset time (before the first image of a pass: the image stamp minus the
 // dataset time difference), so IMU and image stamps stay ordered at any ~rate.
@@ -49,18 +54,18 @@ struct DatasetPlayerConfig {
   /// ~rate: playback speed relative to the dataset stamps (1 = real time, 2 =
   /// twice as fast); 0 publishes as fast as possible.
   double rate = 1.0;
-  /// ~pace_by_consumer: after each frame, wait for a frame_done index >= the
-  /// frame's index (or ~ack_timeout) before the next one.
+  /// ~pace_by_consumer: after each frame, wait for a frame_done >= the image's
+  /// header.seq (or ~ack_timeout) before the next one.
   bool pace_by_consumer = false;
   double ack_timeout = 2.0;  ///< ~ack_timeout, seconds, > 0
   /// ~start_delay: seconds to wait before the first frame, after waiting up to
   /// ~wait_subscribers seconds for a subscriber on image_raw.
   double start_delay = 0.5;
-  double wait_subscribers = 5.0;  ///< ~wait_subscribers, seconds, >= 0
-  int first_frame = 0;            ///< ~first_frame: index of the first frame played
-  int max_frames = 0;             ///< ~max_frames: frames per pass, 0 = to the end
-  bool loop = false;              ///< ~loop: start over after the last frame
-  bool grayscale = false;         ///< ~grayscale: publish mono8 whatever the files hold
+  double wait_subscribers = 5.0;    ///< ~wait_subscribers, seconds, >= 0
+  int first_frame = 0;              ///< ~first_frame: index of the first frame played
+  int max_frames = 0;               ///< ~max_frames: frames per pass, 0 = to the end
+  bool loop = false;                ///< ~loop: start over after the last frame
+  bool grayscale = false;           ///< ~grayscale: publish mono8 whatever the files hold
   bool shutdown_when_done = false;  ///< ~shutdown_when_done: ros::shutdown() after the last frame
 
   /// Throws ecar::Error naming the parameter (e.g. "~rate") of the first bad value.
@@ -101,8 +106,8 @@ class DatasetPlayer {
   void waitForSubscribers();
   /// Sleeps until `until` (servicing callbacks); false when ROS shut down.
   bool sleepUntil(Clock::time_point until);
-  /// Waits for a frame_done >= index, at most ~ack_timeout; false on timeout.
-  bool waitForAck(uint32_t index);
+  /// Waits for a frame_done >= seq, at most ~ack_timeout; false on timeout.
+  bool waitForAck(uint32_t seq);
   void onFrameDone(const std_msgs::UInt32& msg);
 
   DatasetPlayerConfig config_;
@@ -122,13 +127,14 @@ class DatasetPlayer {
 
   // Playback state. Single-threaded: only touched from run() and from callbacks
   // that run inside its ros::spinOnce() calls.
-  size_t imu_cursor_ = 0;  ///< next IMU sample to publish
+  uint32_t image_seq_ = 0;  ///< header.seq of the next image (= roscpp's counter)
+  size_t imu_cursor_ = 0;   ///< next IMU sample to publish
   /// Wall time and dataset time that the schedule of the current pass runs from.
   Clock::time_point anchor_wall_;
   double anchor_t_ = 0.0;
   /// Stamp and dataset time of the previous published frame of the pass.
   std::optional<std::pair<ros::Time, double>> previous_;
-  /// Largest frame_done index received since the current frame was published.
+  /// Largest frame_done received (image seqs only grow, so this never resets).
   std::optional<uint32_t> acked_;
 };
 

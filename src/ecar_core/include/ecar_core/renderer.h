@@ -24,11 +24,11 @@ enum class SurfaceLabel : uint8_t { kNone = 0, kFloor = 1, kWall = 2, kCeiling =
 const char* toString(SurfaceLabel label);
 
 struct RenderOptions {
-  bool color = false;         ///< CV_8UC3 BGR image instead of CV_8UC1 grey
-  bool depth = true;          ///< fill RenderOutput::depth
-  bool labels = true;         ///< fill RenderOutput::labels
-  float noise_sigma = 0.0f;   ///< additive image noise, grey levels
-  uint32_t noise_seed = 0;    ///< e.g. the frame index: noise differs per frame
+  bool color = false;        ///< CV_8UC3 BGR image instead of CV_8UC1 grey
+  bool depth = true;         ///< fill RenderOutput::depth
+  bool labels = true;        ///< fill RenderOutput::labels
+  float noise_sigma = 0.0f;  ///< additive image noise, grey levels
+  uint32_t noise_seed = 0;   ///< e.g. the frame index: noise differs per frame
   /// Mip level selection: footprint = isotropic footprint * (1/cos)^power.
   /// 1 never aliases at grazing angles; smaller keeps floors sharper.
   float anisotropy_power = 0.8f;
@@ -43,9 +43,9 @@ struct RenderOutput {
 /// A world surface: one face of a space (seen from inside) or of a solid
 /// (seen from outside), axis-aligned.
 struct Surface {
-  int axis = 2;              ///< axis of the face normal (0 x, 1 y, 2 z)
-  double coordinate = 0.0;   ///< the face lies at p[axis] == coordinate
-  Eigen::Vector3d normal;    ///< unit normal pointing into the free space
+  int axis = 2;                ///< axis of the face normal (0 x, 1 y, 2 z)
+  double coordinate = 0.0;     ///< the face lies at p[axis] == coordinate
+  Eigen::Vector3d normal;      ///< unit normal pointing into the free space
   int s_axis = 0, t_axis = 1;  ///< texture axes
   double s0 = 0.0, t0 = 0.0;   ///< texture origin (the face's min corner)
   SurfaceLabel label = SurfaceLabel::kNone;
@@ -53,8 +53,8 @@ struct Surface {
 };
 
 struct RayHit {
-  double t = 0.0;        ///< ray parameter: p = origin + t * direction
-  int surface = -1;      ///< index into Renderer::surfaces()
+  double t = 0.0;    ///< ray parameter: p = origin + t * direction
+  int surface = -1;  ///< index into Renderer::surfaces()
   SurfaceLabel label = SurfaceLabel::kNone;
   Eigen::Vector3d p_w = Eigen::Vector3d::Zero();
 };
@@ -95,13 +95,13 @@ class Renderer {
 
   Scene scene_;
   PinholeCamera camera_;
-  std::vector<Surface> surfaces_;     ///< 6 per space box, then 6 per solid box
+  std::vector<Surface> surfaces_;  ///< 6 per space box, then 6 per solid box
   std::vector<BoxF> spaces_f_, solids_f_;
-  std::vector<SurfaceView> views_;    ///< parallel to surfaces_
+  std::vector<SurfaceView> views_;  ///< parallel to surfaces_
   /// Per pixel ray (x/z, y/z, 1) with distortion removed, as two planes.
   std::vector<float> ray_x_, ray_y_;
-  float log2_inv_f_texel_ = 0.0f;     ///< log2(1 / (focal * texel))
-  std::vector<float> max_lod_;        ///< coarsest mip level per surface
+  float log2_inv_f_texel_ = 0.0f;  ///< log2(1 / (focal * texel))
+  std::vector<float> max_lod_;     ///< coarsest mip level per surface
 };
 
 }  // namespace ecar

@@ -49,29 +49,29 @@ struct TrajectorySpec {
   std::vector<Eigen::Vector3d> waypoints;
   Eigen::Vector3d target = Eigen::Vector3d::Zero();
   Eigen::Vector3d position = Eigen::Vector3d::Zero();
-  double speed = 1.2;           ///< m/s along the path (walk, half circle)
-  double height = 1.5;          ///< camera height above z = 0 (walk, half circle), m
-  double pitch_deg = -10.0;     ///< walk: camera pitch, negative looks down
-  double radius = 1.5;          ///< half circle, m
-  double start_angle_deg = 0.0; ///< half circle: angle of the start around target (from +x)
-  double sweep_deg = 180.0;     ///< half circle
-  double duration = 10.0;       ///< shake: seconds; walk/half circle: derived
-  double bob_amplitude = 0.025; ///< vertical hand-held bob, m
-  double sway_amplitude = 0.02; ///< lateral sway, m
-  double step_frequency = 1.8;  ///< steps per second (bob frequency)
-  double jitter_deg = 0.8;      ///< smooth random rotation of the hand, degrees
+  double speed = 1.2;                ///< m/s along the path (walk, half circle)
+  double height = 1.5;               ///< camera height above z = 0 (walk, half circle), m
+  double pitch_deg = -10.0;          ///< walk: camera pitch, negative looks down
+  double radius = 1.5;               ///< half circle, m
+  double start_angle_deg = 0.0;      ///< half circle: angle of the start around target (from +x)
+  double sweep_deg = 180.0;          ///< half circle
+  double duration = 10.0;            ///< shake: seconds; walk/half circle: derived
+  double bob_amplitude = 0.025;      ///< vertical hand-held bob, m
+  double sway_amplitude = 0.02;      ///< lateral sway, m
+  double step_frequency = 1.8;       ///< steps per second (bob frequency)
+  double jitter_deg = 0.8;           ///< smooth random rotation of the hand, degrees
   double shake_amplitude = 0.04;     ///< shake: translation amplitude, m
   double shake_amplitude_deg = 4.0;  ///< shake: rotation amplitude, degrees
   double shake_frequency = 1.2;      ///< shake: dominant frequency, Hz
-  double start_pause = 0.0;     ///< seconds standing still (with hand jitter) before moving
+  double start_pause = 0.0;          ///< seconds standing still (with hand jitter) before moving
 };
 
 /// Odometry as a phone's VIO would report it: drifting in position and yaw,
 /// never in roll and pitch (gravity keeps those).
 struct OdometryNoise {
-  double scale_error = 0.01;       ///< relative scale error of travelled distance
-  double position_walk = 0.01;     ///< m per sqrt(m travelled), random walk
-  double yaw_walk_deg = 0.15;      ///< degrees per sqrt(m travelled), random walk
+  double scale_error = 0.01;    ///< relative scale error of travelled distance
+  double position_walk = 0.01;  ///< m per sqrt(m travelled), random walk
+  double yaw_walk_deg = 0.15;   ///< degrees per sqrt(m travelled), random walk
 };
 
 struct DeviceSpec {

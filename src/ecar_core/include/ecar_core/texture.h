@@ -15,9 +15,9 @@
 namespace ecar {
 
 struct TexturePyramid {
-  double texel_size = 0.005;      ///< metres per texel at level 0
-  std::vector<cv::Mat> gray;      ///< CV_8UC1 per level, level 0 finest
-  std::vector<cv::Mat> bgra;      ///< CV_8UC4 per level (alpha unused)
+  double texel_size = 0.005;  ///< metres per texel at level 0
+  std::vector<cv::Mat> gray;  ///< CV_8UC1 per level, level 0 finest
+  std::vector<cv::Mat> bgra;  ///< CV_8UC4 per level (alpha unused)
 };
 
 /// Generates the texture of a width_m x height_m surface. The result depends

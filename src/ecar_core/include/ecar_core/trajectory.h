@@ -32,8 +32,8 @@ void writeTum(const std::string& path, const Trajectory& traj, const std::string
 /// used at most once, matched greedily by smallest difference as TUM's
 /// associate.py does. Returned in increasing order of i.
 std::vector<std::pair<size_t, size_t>> associate(const std::vector<double>& a,
-                                                 const std::vector<double>& b,
-                                                 double max_dt = 0.02, double offset_b = 0.0);
+                                                 const std::vector<double>& b, double max_dt = 0.02,
+                                                 double offset_b = 0.0);
 
 /// Convenience: the timestamps of a trajectory.
 std::vector<double> timestamps(const Trajectory& traj);

@@ -8,15 +8,15 @@
 
 #include <string>
 
-#include <Eigen/Core>
 #include <geometry_msgs/Pose.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <geometry_msgs/Vector3.h>
-#include <opencv2/core.hpp>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/Imu.h>
 #include <std_msgs/Header.h>
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
 
 #include "ecar_core/camera.h"
 #include "ecar_core/dataset.h"
@@ -36,7 +36,7 @@ struct DeviceTopics {
   std::string imu() const { return ns + "/imu"; }
   /// geometry_msgs/PoseStamped: T_o_c, the camera in the device's odometry frame.
   std::string odometry() const { return ns + "/odometry"; }
-  /// std_msgs/UInt32 from a consumer: the index of the last frame it has processed.
+  /// std_msgs/UInt32 from a consumer: the header.seq of the last image it has processed.
   std::string frame_done() const { return ns + "/frame_done"; }
   /// std_msgs/Bool, latched: true once the player has published every frame.
   std::string player_finished() const { return ns + "/player/finished"; }
