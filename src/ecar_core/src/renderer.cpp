@@ -212,6 +212,12 @@ Renderer::Renderer(const Scene& scene, const std::optional<PinholeCamera>& camer
     }
   }
   log2_inv_f_texel_ = std::log2(1.0f / (focal * static_cast<float>(scene.texture.texel_size)));
+  tex_s0_.resize(views_.size());
+  tex_t0_.resize(views_.size());
+  for (size_t i = 0; i < views_.size(); ++i) {
+    tex_s0_[i] = views_[i].s0;
+    tex_t0_[i] = views_[i].t0;
+  }
   max_lod_.resize(views_.size());
   for (size_t i = 0; i < views_.size(); ++i) max_lod_[i] = static_cast<float>(views_[i].levels - 1);
   const size_t n = static_cast<size_t>(camera_.width()) * camera_.height();
@@ -340,7 +346,7 @@ void Renderer::render(const SE3& T_w_c, const RenderOptions& options, RenderOutp
     if (options.labels) out->labels.setTo(0);
     return;
   }
-  const bool fast = spaces_f_.size() == 1 && solids_f_.empty();
+  const bool fast = spaces_f_.size() == 1;
   thread_local RowScratch row;
   row.resize(W);
   const float aniso = options.anisotropy_power;
@@ -436,7 +442,7 @@ void Renderer::fetchRow(const RowScratch& row, uint8_t* img) const {
   }
 }
 
-// One space box, no solids (a corridor, a plain room): branch-free per pixel,
+// One space box (a corridor, a room) and any solids: branch-free per pixel,
 // so the compiler vectorises it.
 void Renderer::rowGeometryFast(const float* R, const float* o, int v, RowScratch* row) const {
   const int W = camera_.width();
@@ -470,14 +476,45 @@ void Renderer::rowGeometryFast(const float* R, const float* o, int v, RowScratch
     const int axis = x_first ? 0 : (y_first ? 1 : 2);
     const float d_axis = x_first ? dx : (y_first ? dy : dz);
     surf[u] = axis * 2 + (d_axis > 0.0f ? 1 : 0);
-    const float px = ox + t * dx, py = oy + t * dy, pz = oz + t * dz;
-    // Texture axes: x walls use (y, z), y walls (x, z), floor/ceiling (x, y).
-    sp[u] = ((axis == 0 ? py - min_y : px - min_x)) * inv_texel;
-    ttp[u] = ((axis == 2 ? py - min_y : pz - min_z)) * inv_texel;
     tp[u] = t;
     dxp[u] = dx;
     dyp[u] = dy;
     dzp[u] = dz;
+  }
+  // Solids in front of the walls: a slab test per solid, also branch-free.
+  for (size_t b = 0; b < solids_f_.size(); ++b) {
+    const BoxF& S = solids_f_[b];
+    const int base = static_cast<int>((spaces_f_.size() + b) * 6);
+    const float sx0 = S.min[0] - ox, sx1 = S.max[0] - ox, sy0 = S.min[1] - oy, sy1 = S.max[1] - oy,
+                sz0 = S.min[2] - oz, sz1 = S.max[2] - oz;
+    for (int u = 0; u < W; ++u) {
+      const float ix = 1.0f / dxp[u], iy = 1.0f / dyp[u], iz = 1.0f / dzp[u];
+      const float ax = sx0 * ix, bx = sx1 * ix, ay = sy0 * iy, by = sy1 * iy, az = sz0 * iz,
+                  bz = sz1 * iz;
+      const float nx = std::min(ax, bx), ny = std::min(ay, by), nz = std::min(az, bz);
+      const float t_far = std::min(std::max(ax, bx), std::min(std::max(ay, by), std::max(az, bz)));
+      const bool x_near = nx >= ny && nx >= nz;
+      const bool y_near = !x_near && ny >= nz;
+      const float t_near = x_near ? nx : (y_near ? ny : nz);
+      const int axis = x_near ? 0 : (y_near ? 1 : 2);
+      const float d_axis = x_near ? dxp[u] : (y_near ? dyp[u] : dzp[u]);
+      // Entering through the min face when moving up the axis.
+      const int face = axis * 2 + (d_axis > 0.0f ? 0 : 1);
+      const bool hit = t_near <= t_far && t_near > 0.0f && t_near < tp[u];
+      tp[u] = hit ? t_near : tp[u];
+      surf[u] = hit ? base + face : surf[u];
+    }
+  }
+  // Texture coordinates on each pixel's surface.
+  const float* s0 = tex_s0_.data();
+  const float* t0 = tex_t0_.data();
+  for (int u = 0; u < W; ++u) {
+    const float t = tp[u];
+    const float px = ox + t * dxp[u], py = oy + t * dyp[u], pz = oz + t * dzp[u];
+    const int axis = (surf[u] % 6) >> 1;
+    // Texture axes: x faces use (y, z), y faces (x, z), z faces (x, y).
+    sp[u] = ((axis == 0 ? py : px) - s0[surf[u]]) * inv_texel;
+    ttp[u] = ((axis == 2 ? py : pz) - t0[surf[u]]) * inv_texel;
   }
 }
 

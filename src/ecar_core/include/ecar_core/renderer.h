@@ -100,8 +100,9 @@ class Renderer {
   std::vector<SurfaceView> views_;  ///< parallel to surfaces_
   /// Per pixel ray (x/z, y/z, 1) with distortion removed, as two planes.
   std::vector<float> ray_x_, ray_y_;
-  float log2_inv_f_texel_ = 0.0f;  ///< log2(1 / (focal * texel))
-  std::vector<float> max_lod_;     ///< coarsest mip level per surface
+  float log2_inv_f_texel_ = 0.0f;       ///< log2(1 / (focal * texel))
+  std::vector<float> max_lod_;          ///< coarsest mip level per surface
+  std::vector<float> tex_s0_, tex_t0_;  ///< texture origin per surface
 };
 
 }  // namespace ecar
