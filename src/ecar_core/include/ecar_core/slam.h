@@ -1,0 +1,194 @@
+// Monocular ORB SLAM for the edge server: one shared Map, a Tracker per
+// device, and a LocalMapper that takes keyframes from every device.
+//
+//   SlamSystem slam(camera, config);
+//   TrackResult r = slam.track(device, image, timestamp, frame_index, gravity, odometry);
+//
+// Trackers of different devices may run concurrently (each on its own thread);
+// the mapper runs on its own thread (startMapping()) or synchronously after
+// each keyframe (the default, deterministic for tests and the offline runner's
+// --sync mode).
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "ecar_core/camera.h"
+#include "ecar_core/features.h"
+#include "ecar_core/frame.h"
+#include "ecar_core/map.h"
+#include "ecar_core/matcher.h"
+#include "ecar_core/optimizer.h"
+#include "ecar_core/place_recognition.h"
+#include "ecar_core/two_view.h"
+#include "ecar_core/types.h"
+
+namespace ecar {
+
+struct SlamConfig {
+  OrbConfig orb;
+  TwoViewConfig two_view;
+  PnpConfig pnp;
+  PoseOptimizerConfig pose;
+  BaConfig ba;
+  PlaceIndexConfig place;
+  int init_min_matches = 100;        ///< correspondences needed to try two-view
+  double init_window = 100.0;        ///< px search window between the two views
+  int init_max_frames = 30;          ///< renew the first view after this many tries
+  int min_inliers = 30;              ///< tracking OK needs this many inliers
+  double projection_radius = 15.0;   ///< px (x pyramid scale) for motion-model search
+  double local_map_radius = 4.0;     ///< px (x scale) for the local-map search
+  int local_keyframes = 25;          ///< keyframes in the tracking local map
+  int ba_keyframes = 10;             ///< free keyframes in local BA
+  double keyframe_ratio = 0.75;      ///< new keyframe when tracked < ratio x reference's
+  int keyframe_max_gap = 4;          ///< frames (uploads) after which a keyframe is due
+  int covisible_triangulation = 10;  ///< neighbours searched for new points
+  double relocalisation_ratio = 0.75;
+  int relocalisation_candidates = 5;
+  bool synchronous_mapping = true;  ///< map each keyframe inside track()
+};
+
+enum class TrackingState { kNotInitialised = 0, kOk = 1, kLost = 2 };
+const char* toString(TrackingState state);
+
+struct TrackedPoint {
+  MapPointId id;
+  cv::KeyPoint keypoint;  ///< in the uploaded (distorted) image
+  Eigen::Vector3d p_w;
+};
+
+struct TrackResult {
+  TrackingState state = TrackingState::kNotInitialised;
+  bool relocalised = false;  ///< this image was aligned by relocalisation / joining
+  bool initialised = false;  ///< this image created the map
+  SE3 T_w_c = SE3::Identity();
+  std::vector<TrackedPoint> tracked;
+  std::vector<KeyFrameId> local_keyframes;
+  std::optional<KeyFrameId> new_keyframe;
+  double orb_ms = 0.0, track_ms = 0.0;
+  std::string message;  ///< why tracking failed, for logs
+};
+
+class LocalMapper;
+
+class Tracker {
+ public:
+  Tracker(DeviceId device, Map* map, PlaceIndex* index, LocalMapper* mapper,
+          const PinholeCamera& camera, const SlamConfig& config);
+  /// Aligns one grey image. Bad images (empty, wrong size, blank) give a
+  /// NOT_INITIALISED/LOST result with a message; nothing throws.
+  TrackResult track(const cv::Mat& image, double timestamp, uint32_t frame_index,
+                    const std::optional<Eigen::Vector3d>& gravity_c = std::nullopt,
+                    const std::optional<SE3>& T_o_c = std::nullopt);
+  TrackingState state() const { return state_; }
+  int relocalisations() const { return relocalisations_; }
+
+ private:
+  bool initialise(TrackResult* result);
+  bool trackWithMotionModel();
+  bool trackReferenceKeyFrame();
+  bool relocalise();
+  int trackLocalMap();
+  bool needKeyFrame() const;
+  KeyFrameId createKeyFrame();
+  void fillResult(TrackResult* result) const;
+  int optimiseCurrentPose();
+  std::vector<PointSample> samplesOf(const std::vector<MapPointId>& ids) const;  // read lock held
+
+  DeviceId device_;
+  Map* map_;
+  PlaceIndex* index_;
+  LocalMapper* mapper_;
+  PinholeCamera camera_;
+  Intrinsics K_;
+  SlamConfig config_;
+  OrbExtractor extractor_;
+
+  TrackingState state_ = TrackingState::kNotInitialised;
+  Frame current_, last_;
+  SE3 T_c_w_ = SE3::Identity(), last_T_c_w_ = SE3::Identity();
+  std::vector<MapPointId> matches_, last_matches_;
+  std::vector<bool> inliers_;
+  std::optional<SE3> velocity_;  ///< T_c_last: motion from the last frame to the current
+  KeyFrameId reference_kf_;
+  std::vector<KeyFrameId> local_keyframes_;
+  uint32_t frames_since_keyframe_ = 0;
+  int relocalisations_ = 0;
+  // Initialisation.
+  std::optional<Frame> init_frame_;
+  int init_tries_ = 0;
+};
+
+class LocalMapper {
+ public:
+  LocalMapper(Map* map, PlaceIndex* index, const PinholeCamera& camera, const SlamConfig& config);
+  ~LocalMapper();
+  void insert(KeyFrameId kf);
+  /// Maps every queued keyframe now (synchronous mode).
+  void processPending();
+  void startThread();
+  void stopThread();
+  bool idle() const;
+  /// Times of the local bundle adjustments so far (ms).
+  std::vector<double> baTimes() const;
+
+ private:
+  void process(KeyFrameId kf);
+  void cullRecentPoints(KeyFrameId kf);
+  int triangulateNewPoints(KeyFrameId kf);
+  int fuseDuplicates(KeyFrameId kf);
+  int fuseInto(KeyFrameId target, const std::vector<MapPointId>& points);  // write lock held
+  void localBundleAdjustment(KeyFrameId kf);
+  void cullKeyFrames(KeyFrameId kf);
+  void run();
+
+  Map* map_;
+  PlaceIndex* index_;
+  PinholeCamera camera_;
+  Intrinsics K_;
+  SlamConfig config_;
+  mutable std::mutex queue_mutex_;
+  std::condition_variable queue_cv_;
+  std::deque<KeyFrameId> queue_;
+  std::vector<MapPointId> recent_points_;
+  std::vector<double> ba_ms_;
+  std::atomic<bool> busy_{false}, stop_{false};
+  std::thread thread_;
+};
+
+class SlamSystem {
+ public:
+  SlamSystem(const PinholeCamera& camera, const SlamConfig& config = SlamConfig());
+  ~SlamSystem();
+  /// Tracker of a device, created on first use. Different devices may be
+  /// tracked from different threads at once; one device from one thread.
+  Tracker& tracker(DeviceId device);
+  TrackResult track(DeviceId device, const cv::Mat& image, double timestamp, uint32_t frame_index,
+                    const std::optional<Eigen::Vector3d>& gravity_c = std::nullopt,
+                    const std::optional<SE3>& T_o_c = std::nullopt);
+  Map& map() { return map_; }
+  const Map& map() const { return map_; }
+  LocalMapper& mapper() { return mapper_; }
+  const PinholeCamera& camera() const { return camera_; }
+
+ private:
+  PinholeCamera camera_;
+  SlamConfig config_;
+  Map map_;
+  PlaceIndex index_;
+  LocalMapper mapper_;
+  std::mutex trackers_mutex_;
+  std::unordered_map<DeviceId, std::unique_ptr<Tracker>> trackers_;
+};
+
+}  // namespace ecar

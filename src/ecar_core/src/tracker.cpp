@@ -1,0 +1,504 @@
+// Tracking of one device's images against the shared map.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <unordered_set>
+
+#include <opencv2/imgproc.hpp>
+
+#include "ecar_core/matcher.h"
+#include "ecar_core/slam.h"
+
+namespace ecar {
+namespace {
+
+double msSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// World frame of a new map: origin at the first camera, z up when gravity is
+// known (x along the camera's horizontal forward direction), otherwise the
+// first camera's frame.
+SE3 initialWorldFrame(const std::optional<Eigen::Vector3d>& gravity_c) {
+  SE3 T_c_w = SE3::Identity();
+  if (!gravity_c || !gravity_c->allFinite() || gravity_c->norm() < 1.0) return T_c_w;
+  const Eigen::Vector3d up = gravity_c->normalized();
+  Eigen::Vector3d forward = Eigen::Vector3d::UnitZ() - up.z() * up;
+  if (forward.norm() < 1e-3) forward = Eigen::Vector3d::UnitX() - up.x() * up;
+  forward.normalize();
+  // Columns: the world axes expressed in the camera frame.
+  T_c_w.linear().col(0) = forward;
+  T_c_w.linear().col(1) = up.cross(forward);
+  T_c_w.linear().col(2) = up;
+  return T_c_w;
+}
+
+}  // namespace
+
+const char* toString(TrackingState state) {
+  switch (state) {
+    case TrackingState::kOk:
+      return "OK";
+    case TrackingState::kLost:
+      return "LOST";
+    default:
+      return "NOT_INITIALISED";
+  }
+}
+
+Tracker::Tracker(DeviceId device, Map* map, PlaceIndex* index, LocalMapper* mapper,
+                 const PinholeCamera& camera, const SlamConfig& config)
+    : device_(device),
+      map_(map),
+      index_(index),
+      mapper_(mapper),
+      camera_(camera),
+      K_(intrinsicsOf(camera)),
+      config_(config),
+      extractor_(config.orb) {}
+
+TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t frame_index,
+                           const std::optional<Eigen::Vector3d>& gravity_c,
+                           const std::optional<SE3>& T_o_c) {
+  TrackResult result;
+  const auto t0 = std::chrono::steady_clock::now();
+  if (image.empty() || image.cols != camera_.width() || image.rows != camera_.height()) {
+    result.state = state_;
+    result.message = "image is empty or not " + std::to_string(camera_.width()) + "x" +
+                     std::to_string(camera_.height());
+    if (state_ == TrackingState::kOk) state_ = TrackingState::kLost;
+    result.state = state_;
+    return result;
+  }
+  cv::Mat gray;
+  if (image.channels() == 3) {
+    cv::cvtColor(image, gray, cv::COLOR_BGR2GRAY);
+  } else {
+    gray = image;
+  }
+  current_ = Frame();
+  current_.frame_index = frame_index;
+  current_.timestamp = timestamp;
+  current_.gravity_c = gravity_c;
+  current_.T_o_c = T_o_c;
+  extractor_.detectAndCompute(gray, &current_.keypoints, &current_.descriptors);
+  current_.finalize(camera_);
+  result.orb_ms = msSince(t0);
+  const auto t1 = std::chrono::steady_clock::now();
+  matches_.assign(current_.size(), MapPointId());
+  inliers_.assign(current_.size(), false);
+
+  bool map_ready;
+  {
+    auto lock = map_->readLock();
+    map_ready = map_->initialized();
+  }
+  if (current_.size() < 50) {
+    result.message = "too few features (" + std::to_string(current_.size()) + ")";
+    if (state_ == TrackingState::kOk) state_ = TrackingState::kLost;
+  } else if (state_ == TrackingState::kOk) {
+    bool ok = (velocity_ && trackWithMotionModel()) || trackReferenceKeyFrame();
+    if (ok) ok = trackLocalMap() >= config_.min_inliers;
+    if (!ok) {
+      state_ = TrackingState::kLost;
+      result.message = "tracking lost";
+    }
+  } else if (map_ready) {
+    // Lost, or a new device in an existing map: relocalise (join).
+    if (relocalise() && trackLocalMap() >= config_.min_inliers) {
+      state_ = TrackingState::kOk;
+      result.relocalised = true;
+      ++relocalisations_;
+      velocity_.reset();
+    } else {
+      result.message = "relocalisation failed";
+      if (state_ == TrackingState::kOk) state_ = TrackingState::kLost;
+    }
+  } else {
+    if (initialise(&result)) {
+      state_ = TrackingState::kOk;
+      result.initialised = true;
+    }
+  }
+
+  if (state_ == TrackingState::kOk) {
+    if (!result.initialised) {
+      velocity_ = T_c_w_ * last_T_c_w_.inverse();
+      ++frames_since_keyframe_;
+      if (needKeyFrame()) result.new_keyframe = createKeyFrame();
+    }
+    last_T_c_w_ = T_c_w_;
+    last_ = current_;
+    last_matches_ = matches_;
+    for (size_t i = 0; i < last_matches_.size(); ++i) {
+      if (!inliers_[i]) last_matches_[i] = MapPointId();
+    }
+  } else {
+    velocity_.reset();
+  }
+  result.state = state_;
+  if (state_ == TrackingState::kOk) fillResult(&result);
+  result.track_ms = msSince(t1);
+  if (result.new_keyframe && config_.synchronous_mapping) mapper_->processPending();
+  return result;
+}
+
+std::vector<PointSample> Tracker::samplesOf(const std::vector<MapPointId>& ids) const {
+  std::vector<PointSample> out;
+  out.reserve(ids.size());
+  for (const auto& id : ids) {
+    const MapPoint* p = map_->point(id);
+    if (!p || p->descriptor.empty()) continue;
+    PointSample s;
+    s.id = id;
+    s.p_w = p->p_w;
+    s.normal = p->normal;
+    s.min_distance = p->min_distance;
+    s.max_distance = p->max_distance;
+    std::copy(p->descriptor.ptr<uint8_t>(0), p->descriptor.ptr<uint8_t>(0) + 32,
+              s.descriptor.begin());
+    out.push_back(s);
+  }
+  return out;
+}
+
+int Tracker::optimiseCurrentPose() {
+  std::vector<PoseObservation> obs;
+  std::vector<int> index;
+  {
+    auto lock = map_->readLock();
+    for (size_t i = 0; i < matches_.size(); ++i) {
+      const MapPoint* p = map_->point(matches_[i]);
+      if (!p) {
+        matches_[i] = MapPointId();
+        continue;
+      }
+      obs.push_back({p->p_w, current_.undistorted[i],
+                     map_->scale().inv_sigma2[current_.keypoints[i].octave]});
+      index.push_back(static_cast<int>(i));
+    }
+  }
+  std::vector<bool> inl;
+  SE3 T = T_c_w_;
+  const auto r = optimizePose(K_, obs, &T, &inl, config_.pose);
+  if (!isFinite(T)) return 0;
+  T_c_w_ = T;
+  inliers_.assign(current_.size(), false);
+  int n = 0;
+  for (size_t k = 0; k < index.size(); ++k) {
+    if (inl[k]) {
+      inliers_[index[k]] = true;
+      ++n;
+    } else {
+      matches_[index[k]] = MapPointId();
+    }
+  }
+  (void)r;
+  return n;
+}
+
+bool Tracker::trackWithMotionModel() {
+  T_c_w_ = (*velocity_) * last_T_c_w_;
+  std::vector<PointSample> samples;
+  {
+    auto lock = map_->readLock();
+    std::vector<MapPointId> ids;
+    std::vector<int> octaves;
+    for (size_t i = 0; i < last_matches_.size(); ++i) {
+      if (last_matches_[i].valid()) {
+        ids.push_back(last_matches_[i]);
+        octaves.push_back(last_.keypoints[i].octave);
+      }
+    }
+    samples = samplesOf(ids);
+    // Octave hints from the last frame (samples keep the order of ids).
+    size_t k = 0;
+    for (size_t i = 0; i < ids.size() && k < samples.size(); ++i) {
+      if (samples[k].id == ids[i]) samples[k++].octave_hint = octaves[i];
+    }
+  }
+  matches_.assign(current_.size(), MapPointId());
+  int n = searchByProjection(current_, T_c_w_, K_, map_->scale(), samples,
+                             config_.projection_radius, &matches_);
+  if (n < 20) {
+    matches_.assign(current_.size(), MapPointId());
+    n = searchByProjection(current_, T_c_w_, K_, map_->scale(), samples,
+                           2 * config_.projection_radius, &matches_);
+  }
+  if (n < 20) return false;
+  return optimiseCurrentPose() >= 10;
+}
+
+bool Tracker::trackReferenceKeyFrame() {
+  std::vector<PointSample> samples;
+  {
+    auto lock = map_->readLock();
+    const KeyFrame* kf = map_->keyframe(reference_kf_);
+    if (!kf) return false;
+    std::vector<MapPointId> ids;
+    for (const auto& id : kf->points) {
+      if (id.valid()) ids.push_back(id);
+    }
+    samples = samplesOf(ids);
+  }
+  T_c_w_ = last_T_c_w_;
+  matches_.assign(current_.size(), MapPointId());
+  const int n = searchByDescriptor(current_, samples, 0.7, &matches_, nullptr);
+  if (n < 15) return false;
+  return optimiseCurrentPose() >= 10;
+}
+
+int Tracker::trackLocalMap() {
+  // Local keyframes: those observing the current matches, plus their best neighbours.
+  std::vector<PointSample> samples;
+  {
+    auto lock = map_->readLock();
+    std::unordered_map<KeyFrameId, int> counter;
+    for (const auto& id : matches_) {
+      const MapPoint* p = map_->point(id);
+      if (!p) continue;
+      for (const auto& obs : p->observations) ++counter[obs.first];
+    }
+    std::vector<std::pair<int, KeyFrameId>> ranked;
+    for (const auto& kv : counter) ranked.push_back({kv.second, kv.first});
+    std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) {
+      return a.first != b.first ? a.first > b.first : a.second < b.second;
+    });
+    local_keyframes_.clear();
+    std::unordered_set<KeyFrameId> in_local;
+    for (const auto& r : ranked) {
+      if (local_keyframes_.size() >= static_cast<size_t>(config_.local_keyframes) / 2) break;
+      local_keyframes_.push_back(r.second);
+      in_local.insert(r.second);
+    }
+    if (!local_keyframes_.empty()) reference_kf_ = local_keyframes_.front();
+    const size_t direct = local_keyframes_.size();
+    for (size_t k = 0; k < direct; ++k) {
+      for (const auto& n : map_->bestCovisible(local_keyframes_[k], 10)) {
+        if (local_keyframes_.size() >= static_cast<size_t>(config_.local_keyframes)) break;
+        if (in_local.insert(n).second) local_keyframes_.push_back(n);
+      }
+    }
+    std::unordered_set<MapPointId> already(matches_.begin(), matches_.end());
+    std::vector<MapPointId> ids;
+    for (const auto& kid : local_keyframes_) {
+      const KeyFrame* kf = map_->keyframe(kid);
+      if (!kf) continue;
+      for (const auto& pid : kf->points) {
+        if (pid.valid() && already.insert(pid).second) ids.push_back(pid);
+      }
+    }
+    samples = samplesOf(ids);
+  }
+  searchByProjection(current_, T_c_w_, K_, map_->scale(), samples, config_.local_map_radius,
+                     &matches_);
+  const int inliers = optimiseCurrentPose();
+  // Visibility statistics for point culling.
+  {
+    auto lock = map_->writeLock();
+    for (size_t i = 0; i < matches_.size(); ++i) {
+      if (!matches_[i].valid()) continue;
+      if (MapPoint* p = map_->mutablePoint(matches_[i])) {
+        ++p->visible;
+        if (inliers_[i]) ++p->found;
+      }
+    }
+  }
+  return inliers;
+}
+
+bool Tracker::relocalise() {
+  const auto candidates =
+      index_->query(current_.descriptors, config_.relocalisation_candidates, 0.5);
+  for (const auto& c : candidates) {
+    std::vector<PointSample> samples;
+    {
+      auto lock = map_->readLock();
+      const KeyFrame* kf = map_->keyframe(c.keyframe);
+      if (!kf) continue;
+      std::vector<MapPointId> ids;
+      for (const auto& id : kf->points) {
+        if (id.valid()) ids.push_back(id);
+      }
+      samples = samplesOf(ids);
+    }
+    std::vector<MapPointId> m(current_.size());
+    std::vector<int> which;
+    const int nm = searchByDescriptor(current_, samples, config_.relocalisation_ratio, &m, &which);
+    if (nm < 15) continue;
+    std::vector<Eigen::Vector3d> pw;
+    std::vector<Eigen::Vector2d> px;
+    std::vector<int> kp_index;
+    for (size_t i = 0; i < m.size(); ++i) {
+      if (!m[i].valid()) continue;
+      pw.push_back(samples[which[i]].p_w);
+      px.push_back(current_.undistorted[i]);
+      kp_index.push_back(static_cast<int>(i));
+    }
+    Eigen::Matrix3d K;
+    K << K_.fx, 0, K_.cx, 0, K_.fy, K_.cy, 0, 0, 1;
+    const PnpResult pnp = solvePnpRansac(pw, px, K, config_.pnp);
+    if (!pnp.success) continue;
+    matches_.assign(current_.size(), MapPointId());
+    for (int k : pnp.inliers) matches_[kp_index[k]] = m[kp_index[k]];
+    T_c_w_ = pnp.T_c_w;
+    if (optimiseCurrentPose() < 10) continue;
+    // More matches by projection of the candidate's points, then refine.
+    searchByProjection(current_, T_c_w_, K_, map_->scale(), samples, 10.0, &matches_);
+    if (optimiseCurrentPose() < config_.min_inliers) continue;
+    reference_kf_ = c.keyframe;
+    return true;
+  }
+  return false;
+}
+
+bool Tracker::needKeyFrame() const {
+  if (!mapper_) return false;
+  int tracked = 0;
+  for (size_t i = 0; i < matches_.size(); ++i) tracked += inliers_[i] ? 1 : 0;
+  int reference_points = 0;
+  {
+    auto lock = map_->readLock();
+    if (const KeyFrame* kf = map_->keyframe(reference_kf_)) {
+      for (const auto& id : kf->points) {
+        const MapPoint* p = map_->point(id);
+        if (p) ++reference_points;
+      }
+      if (kf->device != device_) return tracked > 15;  // another device's map: add our view
+    }
+  }
+  const bool due = frames_since_keyframe_ >= static_cast<uint32_t>(config_.keyframe_max_gap);
+  const bool weak = tracked < config_.keyframe_ratio * reference_points;
+  return tracked > 15 && (weak || due) && (mapper_->idle() || due);
+}
+
+KeyFrameId Tracker::createKeyFrame() {
+  KeyFrame kf;
+  kf.device = device_;
+  kf.frame_index = current_.frame_index;
+  kf.timestamp = current_.timestamp;
+  kf.T_c_w = T_c_w_;
+  kf.features = current_;
+  KeyFrameId id;
+  {
+    auto lock = map_->writeLock();
+    id = map_->addKeyFrame(std::move(kf));
+    for (size_t i = 0; i < matches_.size(); ++i) {
+      if (matches_[i].valid() && inliers_[i] && map_->point(matches_[i])) {
+        map_->addObservation(matches_[i], id, static_cast<int>(i));
+      }
+    }
+    map_->updateCovisibility(id);
+  }
+  reference_kf_ = id;
+  frames_since_keyframe_ = 0;
+  mapper_->insert(id);
+  return id;
+}
+
+void Tracker::fillResult(TrackResult* result) const {
+  result->T_w_c = T_c_w_.inverse();
+  result->local_keyframes = local_keyframes_;
+  auto lock = map_->readLock();
+  for (size_t i = 0; i < matches_.size(); ++i) {
+    if (!matches_[i].valid() || !inliers_[i]) continue;
+    const MapPoint* p = map_->point(matches_[i]);
+    if (!p) continue;
+    result->tracked.push_back({matches_[i], current_.keypoints[i], p->p_w});
+  }
+}
+
+bool Tracker::initialise(TrackResult* result) {
+  if (!init_frame_ || init_tries_ >= config_.init_max_frames ||
+      static_cast<int>(init_frame_->size()) < config_.init_min_matches) {
+    if (static_cast<int>(current_.size()) >= config_.init_min_matches) {
+      init_frame_ = current_;
+      init_tries_ = 0;
+    }
+    result->message = "initialising: first view taken";
+    return false;
+  }
+  ++init_tries_;
+  std::vector<int> m12;
+  const int n = searchForInitialization(*init_frame_, current_, config_.init_window, &m12);
+  if (n < config_.init_min_matches) {
+    result->message = "initialising: " + std::to_string(n) + " matches";
+    if (n < config_.init_min_matches / 2) init_frame_ = current_, init_tries_ = 0;
+    return false;
+  }
+  std::vector<Eigen::Vector2d> p1, p2;
+  std::vector<std::pair<int, int>> pairs;
+  for (size_t i = 0; i < m12.size(); ++i) {
+    if (m12[i] < 0) continue;
+    p1.push_back(init_frame_->undistorted[i]);
+    p2.push_back(current_.undistorted[m12[i]]);
+    pairs.emplace_back(static_cast<int>(i), m12[i]);
+  }
+  Eigen::Matrix3d K;
+  K << K_.fx, 0, K_.cx, 0, K_.fy, K_.cy, 0, 0, 1;
+  const TwoViewResult tv = reconstructTwoView(p1, p2, K, config_.two_view, current_.frame_index);
+  if (!tv.success) {
+    result->message = "initialising: " + tv.reason;
+    return false;
+  }
+  // Scale: metric from odometry when both views have it, else median depth 1.
+  double scale = 1.0;
+  if (init_frame_->T_o_c && current_.T_o_c) {
+    const double baseline =
+        (current_.T_o_c->translation() - init_frame_->T_o_c->translation()).norm();
+    if (baseline > 1e-3) scale = baseline / tv.T_c2_c1.translation().norm();
+  } else {
+    std::vector<double> depths;
+    for (size_t k = 0; k < tv.valid.size(); ++k) {
+      if (tv.valid[k]) depths.push_back(tv.points_c1[k].z());
+    }
+    if (depths.empty()) return false;
+    std::nth_element(depths.begin(), depths.begin() + depths.size() / 2, depths.end());
+    scale = 1.0 / depths[depths.size() / 2];
+  }
+  const SE3 T_c1_w = initialWorldFrame(init_frame_->gravity_c);
+  SE3 T_c2_c1 = tv.T_c2_c1;
+  T_c2_c1.translation() *= scale;
+  const SE3 T_c2_w = T_c2_c1 * T_c1_w;
+
+  auto lock = map_->writeLock();
+  if (map_->initialized()) return false;  // another device was faster: relocalise next time
+  KeyFrame kf1, kf2;
+  kf1.device = kf2.device = device_;
+  kf1.frame_index = init_frame_->frame_index;
+  kf1.timestamp = init_frame_->timestamp;
+  kf1.T_c_w = T_c1_w;
+  kf1.features = *init_frame_;
+  kf2.frame_index = current_.frame_index;
+  kf2.timestamp = current_.timestamp;
+  kf2.T_c_w = T_c2_w;
+  kf2.features = current_;
+  const KeyFrameId id1 = map_->addKeyFrame(std::move(kf1));
+  const KeyFrameId id2 = map_->addKeyFrame(std::move(kf2));
+  matches_.assign(current_.size(), MapPointId());
+  inliers_.assign(current_.size(), false);
+  const SE3 T_w_c1 = T_c1_w.inverse();
+  for (size_t k = 0; k < pairs.size(); ++k) {
+    if (!tv.valid[k]) continue;
+    const MapPointId pid = map_->addPoint(T_w_c1 * (tv.points_c1[k] * scale), id1);
+    map_->addObservation(pid, id1, pairs[k].first);
+    map_->addObservation(pid, id2, pairs[k].second);
+    map_->updatePointStatistics(pid);
+    matches_[pairs[k].second] = pid;
+    inliers_[pairs[k].second] = true;
+  }
+  map_->updateCovisibility(id1);
+  map_->updateCovisibility(id2);
+  lock.unlock();
+  index_->add(id1, init_frame_->descriptors);
+  mapper_->insert(id2);  // refine the two-view map with BA and new points
+  T_c_w_ = T_c2_w;
+  reference_kf_ = id2;
+  local_keyframes_ = {id1, id2};
+  frames_since_keyframe_ = 0;
+  init_frame_.reset();
+  result->new_keyframe = id2;
+  return true;
+}
+
+}  // namespace ecar

@@ -1,0 +1,184 @@
+// The whole SLAM on short rendered sequences: initialisation, tracking,
+// mapping, several devices in one map, and bad images.
+#include "ecar_core/slam.h"
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "ecar_core/motion.h"
+#include "ecar_core/renderer.h"
+#include "ecar_core/trajectory_eval.h"
+
+namespace ecar {
+namespace {
+
+const std::string kScenes = ECAR_REPO_ROOT "/config/scenes";
+
+struct Upload {
+  cv::Mat image;
+  MotionSample motion;
+  uint32_t frame = 0;
+};
+
+// Every `every`th frame of a device, rendered and JPEG-compressed at quality 70.
+std::vector<Upload> renderUploads(const Scene& scene, const Renderer& renderer,
+                                  const std::string& device, int every, int max_uploads) {
+  const auto motion = generateMotion(scene, scene.device(device), scene.camera.fps);
+  std::vector<Upload> out;
+  RenderOptions opt;
+  opt.noise_sigma = static_cast<float>(scene.noise_sigma);
+  RenderOutput r;
+  for (size_t i = 0; i < motion.size() && static_cast<int>(out.size()) < max_uploads; i += every) {
+    opt.noise_seed = static_cast<uint32_t>(i);
+    renderer.render(motion[i].T_w_c, opt, &r);
+    std::vector<uint8_t> jpeg;
+    cv::imencode(".jpg", r.image, jpeg, {cv::IMWRITE_JPEG_QUALITY, 70});
+    out.push_back({cv::imdecode(jpeg, cv::IMREAD_GRAYSCALE), motion[i], static_cast<uint32_t>(i)});
+  }
+  return out;
+}
+
+// ATE of tracked uploads after one Sim(3) (or SE(3)) alignment.
+double ate(const std::vector<Eigen::Vector3d>& est, const std::vector<Eigen::Vector3d>& gt,
+           bool scale) {
+  const Sim3 S = umeyama(est, gt, scale);
+  std::vector<double> e;
+  for (size_t i = 0; i < est.size(); ++i) e.push_back((S * est[i] - gt[i]).norm());
+  return computeStats(e).rmse;
+}
+
+TEST(SlamTest, HalfCircleIsTrackedAccurately) {
+  const Scene scene = loadScene(kScenes + "/room.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "half_circle", 4, 60);
+  SlamSystem slam(renderer.camera());
+  std::vector<Eigen::Vector3d> est, gt;
+  int tracked = 0, init = -1;
+  for (size_t i = 0; i < uploads.size(); ++i) {
+    const auto r = slam.track(DeviceId(1), uploads[i].image, uploads[i].motion.timestamp,
+                              uploads[i].frame, uploads[i].motion.gravity_c);
+    if (r.initialised) init = static_cast<int>(i);
+    if (r.state == TrackingState::kOk) {
+      ++tracked;
+      est.push_back(r.T_w_c.translation());
+      gt.push_back(uploads[i].motion.T_w_c.translation());
+      EXPECT_GT(r.tracked.size(), 50u) << "upload " << i;
+    }
+  }
+  ASSERT_GE(init, 0) << "never initialised";
+  EXPECT_LE(init, 10);  // the device stands still for 0.5 s, then speeds up
+  const int after = static_cast<int>(uploads.size()) - init;
+  EXPECT_GE(tracked, 0.95 * after) << tracked << " of " << after;
+  ASSERT_GE(est.size(), 10u);
+  EXPECT_LT(ate(est, gt, true), 0.03);
+  EXPECT_GE(slam.map().numKeyFrames(), 3u);
+}
+
+TEST(SlamTest, OdometryGivesAMetricMap) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "device_0", 4, 40);
+  SlamSystem slam(renderer.camera());
+  std::vector<Eigen::Vector3d> est, gt;
+  for (const auto& u : uploads) {
+    const auto r = slam.track(DeviceId(1), u.image, u.motion.timestamp, u.frame, u.motion.gravity_c,
+                              u.motion.T_o_c);
+    if (r.state == TrackingState::kOk) {
+      est.push_back(r.T_w_c.translation());
+      gt.push_back(u.motion.T_w_c.translation());
+    }
+  }
+  ASSERT_GE(est.size(), 25u);
+  const Sim3 S = umeyama(est, gt, true);
+  // Metric within the odometry's scale error (1%) plus the two-view estimate.
+  EXPECT_NEAR(S.scale, 1.0, 0.05);
+  // Gravity-aligned: the map's z axis is up.
+  EXPECT_GT((S.R * Eigen::Vector3d::UnitZ()).z(), 0.99);
+}
+
+TEST(SlamTest, TwoDevicesEndInOneMap) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto a = renderUploads(scene, renderer, "device_0", 4, 35);
+  const auto b = renderUploads(scene, renderer, "device_2", 4, 35);
+  SlamSystem slam(renderer.camera());
+  std::vector<Eigen::Vector3d> est, gt;
+  int tracked_b = 0, joined_b = -1;
+  for (size_t i = 0; i < std::max(a.size(), b.size()); ++i) {
+    for (int d = 0; d < 2; ++d) {
+      const auto& ups = d == 0 ? a : b;
+      if (i >= ups.size()) continue;
+      const auto r = slam.track(DeviceId(d + 1), ups[i].image, ups[i].motion.timestamp,
+                                ups[i].frame, ups[i].motion.gravity_c);
+      if (r.state != TrackingState::kOk) continue;
+      if (d == 1) {
+        ++tracked_b;
+        if (joined_b < 0) joined_b = static_cast<int>(i);
+      }
+      est.push_back(r.T_w_c.translation());
+      gt.push_back(ups[i].motion.T_w_c.translation());
+    }
+  }
+  EXPECT_GE(joined_b, 0) << "the second device never joined the map";
+  EXPECT_GE(tracked_b, 0.8 * static_cast<int>(b.size()));
+  ASSERT_GE(est.size(), 20u);
+  // Both devices' poses fit the ground truth with a single transform.
+  EXPECT_LT(ate(est, gt, true), 0.05);
+  // Keyframes from both devices are in the map.
+  auto lock = slam.map().readLock();
+  bool has[3] = {false, false, false};
+  for (const auto& id : slam.map().keyframeIds()) has[slam.map().keyframe(id)->device.value] = true;
+  EXPECT_TRUE(has[1]);
+  EXPECT_TRUE(has[2]);
+}
+
+TEST(SlamTest, BadImagesAreReportedAndSkipped) {
+  const Scene scene = loadScene(kScenes + "/room.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "half_circle", 4, 16);
+  SlamSystem slam(renderer.camera());
+  size_t i = 0;
+  for (; i < 10; ++i) {
+    slam.track(DeviceId(1), uploads[i].image, uploads[i].motion.timestamp, uploads[i].frame);
+  }
+  ASSERT_EQ(slam.tracker(DeviceId(1)).state(), TrackingState::kOk);
+  size_t keyframes;
+  {
+    auto lock = slam.map().readLock();
+    keyframes = slam.map().numKeyFrames();
+  }
+  const cv::Mat black = cv::Mat::zeros(480, 640, CV_8UC1);
+  const cv::Mat blank(480, 640, CV_8UC1, cv::Scalar(200));
+  const cv::Mat small = cv::Mat::zeros(100, 100, CV_8UC1);
+  std::vector<uint8_t> jpeg;
+  cv::imencode(".jpg", uploads[10].image, jpeg);
+  jpeg.resize(jpeg.size() / 3);  // truncated JPEG: decodes partly or not at all
+  const cv::Mat truncated = cv::imdecode(jpeg, cv::IMREAD_GRAYSCALE);
+  for (const cv::Mat& bad : {black, blank, small, cv::Mat()}) {
+    const auto r = slam.track(DeviceId(1), bad, 0.0, 0);
+    EXPECT_NE(r.state, TrackingState::kNotInitialised);
+    EXPECT_FALSE(r.message.empty());
+  }
+  // The map is unchanged by the bad images.
+  {
+    auto lock = slam.map().readLock();
+    EXPECT_EQ(slam.map().numKeyFrames(), keyframes);
+  }
+  // A truncated JPEG decodes partly (or not at all): tracked or reported, no crash.
+  const auto rt = slam.track(DeviceId(1), truncated, 0.0, 0);
+  EXPECT_TRUE(rt.state == TrackingState::kOk || !rt.message.empty());
+  bool recovered = false;
+  for (i = 10; i < uploads.size(); ++i) {
+    const auto r =
+        slam.track(DeviceId(1), uploads[i].image, uploads[i].motion.timestamp, uploads[i].frame);
+    recovered |= r.state == TrackingState::kOk;
+  }
+  EXPECT_TRUE(recovered);
+  // A repeated image is tracked (zero motion), not a crash.
+  const auto r1 = slam.track(DeviceId(1), uploads.back().image, 100.0, 1000);
+  const auto r2 = slam.track(DeviceId(1), uploads.back().image, 100.1, 1001);
+  EXPECT_EQ(r2.state, r1.state);
+}
+
+}  // namespace
+}  // namespace ecar

@@ -1,0 +1,343 @@
+// Runs the SLAM on datasets as the edge server would see them:
+//
+//   ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]
+//                     [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]
+//                     [--devices DIR2 ...] [--no-odometry] [--threads]
+//
+// Every Nth frame of each dataset is (optionally) JPEG-compressed at quality Q,
+// decoded, and tracked; several datasets run interleaved by time into one map.
+// Prints and writes (JSON): uploads tracked / total, initialisation upload,
+// relocalisations, keyframes, map points, ATE against the ground truth (Sim(3)
+// without metric odometry, SE(3) with it; one transform for all devices), and
+// median / p95 times of ORB extraction, tracking and local BA.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "ecar_core/dataset.h"
+#include "ecar_core/error.h"
+#include "ecar_core/slam.h"
+#include "ecar_core/trajectory.h"
+#include "ecar_core/trajectory_eval.h"
+
+namespace {
+
+struct Args {
+  std::vector<std::string> datasets;
+  std::string format = "auto";
+  int every = 1;
+  int jpeg_quality = 0;  // 0: no compression
+  int frames = 0;        // 0: all
+  std::string out, summary;
+  bool use_odometry = true;
+  bool threads = false;
+  bool verbose = false;
+  bool sequential = false;
+};
+
+void usage(std::ostream& os) {
+  os << "usage: ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]\n"
+        "         [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]\n"
+        "         [--devices DIR2 ...] [--no-odometry] [--threads]\n"
+        "  --every N         track every Nth frame (the server sees every 4th)\n"
+        "  --jpeg-quality Q  JPEG-compress each image at quality Q (1-100) first\n"
+        "  --frames N        only the first N frames of each dataset\n"
+        "  --devices DIR...  more datasets, run interleaved into the same map\n"
+        "  --no-odometry     ignore the datasets' odometry (scale from median depth)\n"
+        "  --threads         local mapping on its own thread (default: after each keyframe)\n"
+        "  --verbose         one line per upload (state, tracked points, why it failed)\n"
+        "  --sequential      run the datasets one after another (later ones join the map)\n";
+}
+
+Args parse(int argc, char** argv) {
+  Args a;
+  for (int i = 1; i < argc; ++i) {
+    const std::string k = argv[i];
+    auto value = [&]() -> std::string {
+      if (i + 1 >= argc) throw ecar::Error("option " + k + " needs a value");
+      return argv[++i];
+    };
+    auto integer = [&](int lo, int hi) {
+      const std::string v = value();
+      try {
+        size_t used = 0;
+        const int n = std::stoi(v, &used);
+        if (used != v.size() || n < lo || n > hi) throw std::out_of_range(v);
+        return n;
+      } catch (const std::exception&) {
+        throw ecar::Error("option " + k + " needs an integer in [" + std::to_string(lo) + ", " +
+                          std::to_string(hi) + "] (got '" + v + "')");
+      }
+    };
+    if (k == "--dataset") {
+      a.datasets.insert(a.datasets.begin(), value());
+    } else if (k == "--devices") {
+      while (i + 1 < argc && std::string(argv[i + 1]).rfind("--", 0) != 0) {
+        a.datasets.push_back(argv[++i]);
+      }
+    } else if (k == "--format") {
+      a.format = value();
+    } else if (k == "--every") {
+      a.every = integer(1, 1000);
+    } else if (k == "--jpeg-quality") {
+      a.jpeg_quality = integer(1, 100);
+    } else if (k == "--frames") {
+      a.frames = integer(0, 1 << 30);
+    } else if (k == "--out") {
+      a.out = value();
+    } else if (k == "--summary") {
+      a.summary = value();
+    } else if (k == "--no-odometry") {
+      a.use_odometry = false;
+    } else if (k == "--threads") {
+      a.threads = true;
+    } else if (k == "--verbose") {
+      a.verbose = true;
+    } else if (k == "--sequential") {
+      a.sequential = true;
+    } else if (k == "--help" || k == "-h") {
+      usage(std::cout);
+      std::exit(0);
+    } else {
+      throw ecar::Error("unknown option '" + k + "'");
+    }
+  }
+  if (a.datasets.empty()) throw ecar::Error("--dataset is required");
+  return a;
+}
+
+double percentile(std::vector<double> v, double p) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  return v[static_cast<size_t>(p * (v.size() - 1) + 0.5)];
+}
+
+struct DeviceRun {
+  explicit DeviceRun(ecar::Dataset d) : dataset(std::move(d)) {}
+  ecar::Dataset dataset;
+  std::string name;
+  std::vector<size_t> uploads;  // frame indices sent
+  size_t next = 0;
+  int tracked = 0, init_upload = -1, joined_upload = -1, relocalisations = 0;
+  ecar::Trajectory estimate, truth;  // tracked uploads with ground truth
+  ecar::Trajectory all_estimates;
+};
+
+std::string deviceTrajectoryPath(const std::string& out, size_t device, size_t count) {
+  if (count == 1) return out;
+  const auto dot = out.rfind('.');
+  const std::string stem = dot == std::string::npos ? out : out.substr(0, dot);
+  const std::string ext = dot == std::string::npos ? "" : out.substr(dot);
+  return stem + "_device" + std::to_string(device) + ext;
+}
+
+int run(const Args& args) {
+  std::vector<DeviceRun> runs;
+  for (size_t d = 0; d < args.datasets.size(); ++d) {
+    DeviceRun r(ecar::Dataset::open(args.datasets[d], ecar::parseDatasetFormat(args.format)));
+    r.name = "device_" + std::to_string(d);
+    const size_t n =
+        args.frames > 0 ? std::min<size_t>(args.frames, r.dataset.size()) : r.dataset.size();
+    for (size_t i = 0; i < n; i += args.every) r.uploads.push_back(i);
+    runs.push_back(std::move(r));
+  }
+  const ecar::PinholeCamera camera = runs.front().dataset.camera();
+  for (const auto& r : runs) {
+    if (r.dataset.camera().width() != camera.width() ||
+        r.dataset.camera().height() != camera.height()) {
+      throw ecar::Error(r.dataset.dir() + ": camera differs from the first dataset's");
+    }
+  }
+  ecar::SlamConfig config;
+  config.synchronous_mapping = !args.threads;
+  ecar::SlamSystem slam(camera, config);
+  bool metric = args.use_odometry;
+  for (const auto& r : runs) {
+    if (r.dataset.size() == 0 || !r.dataset.frame(0).T_o_c_odom) metric = false;
+  }
+
+  std::vector<double> orb_ms, track_ms;
+  std::vector<int> order;  // interleave: the device whose next upload is earliest
+  size_t total_uploads = 0;
+  for (const auto& r : runs) total_uploads += r.uploads.size();
+  const auto t_start = std::chrono::steady_clock::now();
+  for (size_t step = 0; step < total_uploads; ++step) {
+    size_t d = runs.size();
+    for (size_t k = 0; k < runs.size(); ++k) {
+      if (runs[k].next >= runs[k].uploads.size()) continue;
+      const double t = runs[k].dataset.frame(runs[k].uploads[runs[k].next]).timestamp -
+                       runs[k].dataset.frame(0).timestamp;
+      if (args.sequential) {
+        d = k;
+        break;
+      }
+      if (d == runs.size() || t < runs[d].dataset.frame(runs[d].uploads[runs[d].next]).timestamp -
+                                      runs[d].dataset.frame(0).timestamp) {
+        d = k;
+      }
+    }
+    DeviceRun& r = runs[d];
+    const size_t index = r.uploads[r.next];
+    const int upload = static_cast<int>(r.next++);
+    const ecar::DatasetFrame& f = r.dataset.frame(index);
+    cv::Mat image;
+    try {
+      image = r.dataset.loadImage(index, cv::IMREAD_GRAYSCALE);
+    } catch (const ecar::Error& e) {
+      std::cerr << "ecar_slam_offline: " << e.what() << " (tracked as a bad image)\n";
+    }
+    if (args.jpeg_quality > 0 && !image.empty()) {
+      std::vector<uint8_t> jpeg;
+      cv::imencode(".jpg", image, jpeg, {cv::IMWRITE_JPEG_QUALITY, args.jpeg_quality});
+      image = cv::imdecode(jpeg, cv::IMREAD_GRAYSCALE);
+    }
+    const std::optional<ecar::SE3> odom = metric ? f.T_o_c_odom : std::optional<ecar::SE3>();
+    const ecar::TrackResult res =
+        slam.track(ecar::DeviceId(static_cast<uint32_t>(d + 1)), image, f.timestamp,
+                   static_cast<uint32_t>(index), f.gravity_c, odom);
+    if (args.verbose) {
+      std::fprintf(stderr, "[slam] %s upload %d frame %zu: %s, %zu points%s%s\n", r.name.c_str(),
+                   upload, index, ecar::toString(res.state), res.tracked.size(),
+                   res.message.empty() ? "" : ": ", res.message.c_str());
+    }
+    orb_ms.push_back(res.orb_ms);
+    track_ms.push_back(res.track_ms);
+    if (res.initialised) r.init_upload = upload;
+    if (res.relocalised) {
+      if (r.joined_upload < 0 && r.init_upload < 0) r.joined_upload = upload;
+      ++r.relocalisations;
+    }
+    if (res.state == ecar::TrackingState::kOk) {
+      ++r.tracked;
+      r.all_estimates.push_back({f.timestamp, res.T_w_c});
+      if (f.T_w_c_gt) {
+        r.estimate.push_back({f.timestamp, res.T_w_c});
+        r.truth.push_back({f.timestamp, *f.T_w_c_gt});
+      }
+    }
+    if (step % 20 == 0 || step + 1 == total_uploads) {
+      std::fprintf(stderr, "\r[slam] upload %zu/%zu  %s  kf %zu  points %zu   ", step + 1,
+                   total_uploads, ecar::toString(res.state), slam.map().numKeyFrames(),
+                   slam.map().numPoints());
+    }
+  }
+  std::fprintf(stderr, "\n");
+  slam.mapper().stopThread();
+  slam.mapper().processPending();
+  const double wall_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+
+  // ATE: one transform for every device (they share the map).
+  std::vector<Eigen::Vector3d> est_all, gt_all;
+  for (const auto& r : runs) {
+    for (size_t i = 0; i < r.estimate.size(); ++i) {
+      est_all.push_back(r.estimate[i].T_w_c.translation());
+      gt_all.push_back(r.truth[i].T_w_c.translation());
+    }
+  }
+  nlohmann::json summary;
+  summary["alignment"] = metric ? "se3" : "sim3";
+  summary["every"] = args.every;
+  summary["jpeg_quality"] = args.jpeg_quality;
+  ecar::Sim3 S;
+  bool have_ate = est_all.size() >= 3;
+  if (have_ate) {
+    try {
+      S = ecar::umeyama(est_all, gt_all, !metric);
+    } catch (const ecar::Error& e) {
+      have_ate = false;
+      std::cerr << "ecar_slam_offline: no ATE: " << e.what() << "\n";
+    }
+  }
+  std::printf("map: %zu keyframes, %zu map points (%.1f s wall)\n", slam.map().numKeyFrames(),
+              slam.map().numPoints(), wall_s);
+  std::vector<double> all_errors;
+  for (size_t d = 0; d < runs.size(); ++d) {
+    const DeviceRun& r = runs[d];
+    std::vector<double> errors;
+    for (size_t i = 0; i < r.estimate.size() && have_ate; ++i) {
+      errors.push_back(
+          (S * r.estimate[i].T_w_c.translation() - r.truth[i].T_w_c.translation()).norm());
+    }
+    all_errors.insert(all_errors.end(), errors.begin(), errors.end());
+    const ecar::ErrorStats st = ecar::computeStats(errors);
+    const int after_init = r.init_upload >= 0 ? static_cast<int>(r.uploads.size()) - r.init_upload
+                                              : static_cast<int>(r.uploads.size());
+    std::printf(
+        "%s (%s): tracked %d/%zu uploads (%.1f%%; %.1f%% after initialisation), init upload %d"
+        " (frame %d), joined upload %d, relocalisations %d, ATE rmse %.4f m (n %zu)\n",
+        r.name.c_str(), r.dataset.dir().c_str(), r.tracked, r.uploads.size(),
+        100.0 * r.tracked / std::max<size_t>(1, r.uploads.size()),
+        100.0 * r.tracked / std::max(1, after_init), r.init_upload,
+        r.init_upload >= 0 ? static_cast<int>(r.uploads[r.init_upload]) : -1, r.joined_upload,
+        r.relocalisations, st.rmse, st.n);
+    summary["devices"].push_back(
+        {{"dataset", r.dataset.dir()},
+         {"uploads", r.uploads.size()},
+         {"tracked", r.tracked},
+         {"init_upload", r.init_upload},
+         {"init_frame", r.init_upload >= 0 ? static_cast<int>(r.uploads[r.init_upload]) : -1},
+         {"joined_upload", r.joined_upload},
+         {"relocalisations", r.relocalisations},
+         {"ate", ecar::toJson(st)}});
+    if (!args.out.empty()) {
+      ecar::writeTum(deviceTrajectoryPath(args.out, d, runs.size()), r.all_estimates,
+                     "ecar_slam_offline estimate (T_w_c per tracked upload)");
+    }
+  }
+  const ecar::ErrorStats overall = ecar::computeStats(all_errors);
+  const auto ba = slam.mapper().baTimes();
+  std::printf(
+      "ATE (%s, one transform for all devices): rmse %.4f m, median %.4f m, max %.4f m, scale "
+      "%.4f\n",
+      metric ? "SE(3)" : "Sim(3)", overall.rmse, overall.median, overall.max, S.scale);
+  std::printf(
+      "times ms: ORB median %.1f p95 %.1f | tracking median %.1f p95 %.1f | local BA "
+      "median %.1f p95 %.1f (%zu runs)\n",
+      percentile(orb_ms, 0.5), percentile(orb_ms, 0.95), percentile(track_ms, 0.5),
+      percentile(track_ms, 0.95), percentile(ba, 0.5), percentile(ba, 0.95), ba.size());
+  summary["keyframes"] = slam.map().numKeyFrames();
+  summary["map_points"] = slam.map().numPoints();
+  summary["ate"] = ecar::toJson(overall);
+  summary["scale"] = S.scale;
+  summary["times_ms"] = {
+      {"orb_median", percentile(orb_ms, 0.5)},        {"orb_p95", percentile(orb_ms, 0.95)},
+      {"tracking_median", percentile(track_ms, 0.5)}, {"tracking_p95", percentile(track_ms, 0.95)},
+      {"local_ba_median", percentile(ba, 0.5)},       {"local_ba_p95", percentile(ba, 0.95)}};
+  summary["wall_s"] = wall_s;
+  if (!args.summary.empty()) {
+    std::ofstream out(args.summary);
+    out << summary.dump(2) << "\n";
+    if (!out) throw ecar::Error(args.summary + ": cannot write summary");
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  cv::setNumThreads(1);
+  try {
+    return run(parse(argc, argv));
+  } catch (const ecar::Error& e) {
+    std::cerr << "ecar_slam_offline: " << e.what() << "\n";
+    const std::string what = e.what();
+    if (what.find("option") != std::string::npos || what.find("required") != std::string::npos) {
+      usage(std::cerr);
+      return 2;
+    }
+    return 1;
+  } catch (const std::exception& e) {
+    std::cerr << "ecar_slam_offline: " << e.what() << "\n";
+    return 1;
+  }
+}
