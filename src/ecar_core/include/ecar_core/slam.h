@@ -44,7 +44,7 @@ struct SlamConfig {
   PlaceIndexConfig place;
   int init_min_matches = 100;        ///< correspondences needed to try two-view
   double init_window = 100.0;        ///< px search window between the two views
-  int init_max_frames = 30;          ///< renew the first view after this many tries
+  int init_max_frames = 10;          ///< renew the first view after this many tries
   int min_inliers = 30;              ///< tracking OK needs this many inliers
   double projection_radius = 15.0;   ///< px (x pyramid scale) for motion-model search
   double local_map_radius = 4.0;     ///< px (x scale) for the local-map search
