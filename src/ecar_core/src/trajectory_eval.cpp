@@ -301,6 +301,13 @@ nlohmann::json numberOrNull(double value) {
 }
 }  // namespace
 
+double percentile(std::vector<double> values, double p) {
+  if (values.empty()) return 0.0;
+  std::sort(values.begin(), values.end());
+  const double clamped = std::clamp(p, 0.0, 1.0);
+  return values[static_cast<size_t>(clamped * (values.size() - 1) + 0.5)];
+}
+
 nlohmann::json toJson(const ErrorStats& stats) {
   return {{"n", stats.n},
           {"rmse", numberOrNull(stats.rmse)},

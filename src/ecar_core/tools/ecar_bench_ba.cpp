@@ -20,8 +20,11 @@
 
 #include "ecar_core/geometry.h"
 #include "ecar_core/optimizer.h"
+#include "ecar_core/trajectory_eval.h"
 
 namespace {
+
+using ecar::percentile;
 
 using ecar::BaProblem;
 using ecar::SE3;
@@ -37,12 +40,6 @@ constexpr int kLevels = 8;
 void usage() {
   std::cerr << "usage: ecar_bench_ba [--runs N] [--threads T] [--keyframes K] [--fixed F] "
                "[--points P] [--track L] [--pose-obs M]\n";
-}
-
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[static_cast<size_t>(p * (v.size() - 1) + 0.5)];
 }
 
 ecar::Intrinsics makeK() {

@@ -25,8 +25,11 @@
 #include "ecar_core/motion.h"
 #include "ecar_core/renderer.h"
 #include "ecar_core/scene.h"
+#include "ecar_core/trajectory_eval.h"
 
 namespace {
+
+using ecar::percentile;
 
 struct Args {
   std::string image, scene;
@@ -42,12 +45,6 @@ double threadCpuMs() {
   timespec t;
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
   return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
-}
-
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  return v[static_cast<size_t>(p * (v.size() - 1) + 0.5)];
 }
 
 // Times `extract(frame)` over `runs` calls cycling through `frames` (after one

@@ -23,8 +23,11 @@
 
 #include "ecar_core/error.h"
 #include "ecar_core/place_recognition.h"
+#include "ecar_core/trajectory_eval.h"
 
 namespace {
+
+using ecar::percentile;
 
 struct Args {
   int keyframes = 5000, features = 1000, queries = 200;
@@ -34,12 +37,6 @@ struct Args {
 void usage() {
   std::cerr << "usage: ecar_bench_place [--keyframes N] [--features M] [--queries Q] "
                "[--tables T] [--bits B] [--seed S]\n";
-}
-
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[static_cast<size_t>(p * (v.size() - 1) + 0.5)];
 }
 
 double msSince(std::chrono::steady_clock::time_point t0) {

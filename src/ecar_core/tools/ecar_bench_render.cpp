@@ -20,8 +20,11 @@
 #include "ecar_core/motion.h"
 #include "ecar_core/renderer.h"
 #include "ecar_core/scene.h"
+#include "ecar_core/trajectory_eval.h"
 
 namespace {
+
+using ecar::percentile;
 
 struct Args {
   std::string scene, device;
@@ -32,12 +35,6 @@ struct Args {
 void usage() {
   std::cerr << "usage: ecar_bench_render --scene FILE [--device NAME] [--frames N] [--every K] "
                "[--color] [--orb]\n";
-}
-
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[static_cast<size_t>(p * (v.size() - 1) + 0.5)];
 }
 
 }  // namespace

@@ -31,6 +31,8 @@
 
 namespace {
 
+using ecar::percentile;
+
 struct Args {
   std::vector<std::string> datasets;
   std::string format = "auto";
@@ -113,12 +115,6 @@ Args parse(int argc, char** argv) {
   }
   if (a.datasets.empty()) throw ecar::Error("--dataset is required");
   return a;
-}
-
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  return v[static_cast<size_t>(p * (v.size() - 1) + 0.5)];
 }
 
 struct DeviceRun {

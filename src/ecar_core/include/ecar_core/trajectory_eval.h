@@ -59,6 +59,10 @@ struct ErrorStats {
 /// Statistics of `errors`; for an empty set n == 0 and every statistic is NaN.
 ErrorStats computeStats(const std::vector<double>& errors);
 
+/// The p-quantile (p in [0, 1]) of `values` by nearest rank; 0 for an empty set.
+/// Used by the benchmark tools for median / p95 timings.
+double percentile(std::vector<double> values, double p);
+
 struct AteResult {
   ErrorStats translation;  ///< |p_gt - S_w_v * p_est| over matched poses, metres.
   Sim3 alignment;          ///< S_w_v (identity for Alignment::kNone).
