@@ -55,6 +55,22 @@ cv::Size levelSize(const cv::Size& image, float scale) {
   return cv::Size(cvRound(image.width / scale), cvRound(image.height / scale));
 }
 
+// cv::resize (INTER_LINEAR) maps pixel centres: a level pixel x is the image
+// point (x + 0.5) * (W / w) - 0.5, with the exact size ratio of the level (not
+// the nominal scale, which rounding of the level size makes differ by up to
+// 1.4 px at the coarsest level's far edge).
+cv::Point2f levelToImage(float x, float y, const cv::Size& image, const cv::Size& level) {
+  const float sx = static_cast<float>(image.width) / static_cast<float>(level.width);
+  const float sy = static_cast<float>(image.height) / static_cast<float>(level.height);
+  return {(x + 0.5f) * sx - 0.5f, (y + 0.5f) * sy - 0.5f};
+}
+
+cv::Point2f imageToLevel(float x, float y, const cv::Size& image, const cv::Size& level) {
+  const float sx = static_cast<float>(level.width) / static_cast<float>(image.width);
+  const float sy = static_cast<float>(level.height) / static_cast<float>(image.height);
+  return {(x + 0.5f) * sx - 0.5f, (y + 0.5f) * sy - 0.5f};
+}
+
 bool levelUsable(const cv::Size& size) {
   return size.width > 2 * kBorder && size.height > 2 * kBorder;
 }
@@ -537,7 +553,8 @@ void OrbExtractor::detectAndCompute(const cv::Mat& image, std::vector<cv::KeyPoi
       const float angle =
           intensityCentroidAngle(m.levels[l], static_cast<int>(c.x), static_cast<int>(c.y), m.disk);
       const int row = static_cast<int>(keypoints->size());
-      keypoints->emplace_back(c.x * scale_[l], c.y * scale_[l], kPatchSize * scale_[l], angle,
+      const cv::Point2f pt = levelToImage(c.x, c.y, gray.size(), m.levels[l].size());
+      keypoints->emplace_back(pt.x, pt.y, kPatchSize * scale_[l], angle,
                               static_cast<float>(c.response), l);
       m.level_keypoints.emplace_back(c.x, c.y, kPatchSize, angle, 0.0f, 0, row);
     }
@@ -582,7 +599,8 @@ void OrbExtractor::computeAt(const cv::Mat& image, const std::vector<cv::KeyPoin
     if (!std::isfinite(kp.angle) || !std::isfinite(kp.pt.x) || !std::isfinite(kp.pt.y)) continue;
     if (kp.pt.x < 0.0f || kp.pt.y < 0.0f || kp.pt.x >= gray.cols || kp.pt.y >= gray.rows) continue;
     const cv::Size size = levelSize(gray.size(), scale_[kp.octave]);
-    const int x = cvRound(kp.pt.x / scale_[kp.octave]), y = cvRound(kp.pt.y / scale_[kp.octave]);
+    const cv::Point2f at = imageToLevel(kp.pt.x, kp.pt.y, gray.size(), size);
+    const int x = cvRound(at.x), y = cvRound(at.y);
     if (x < kBorder || y < kBorder || x >= size.width - kBorder || y >= size.height - kBorder) {
       continue;
     }

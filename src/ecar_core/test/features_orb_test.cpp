@@ -243,6 +243,65 @@ TEST(OrbExtractorTest, AnglesTurnWithTheImage) {
   EXPECT_GE(same_descriptor, 0.8 * matched) << matched << " matched";
 }
 
+// A keypoint found on a coarse pyramid level must lie where the same corner
+// is in the full image, without a bias: a constant offset that grows with the
+// level (half a level pixel when the level-to-image mapping ignores pixel
+// centres) makes a point seen at changing scales drift, which a walk turns
+// into scale drift of the whole map. Truth: the same high-resolution picture
+// area-downsampled straight to a level's size, whose level-0 corners have no
+// scaling error.
+TEST(OrbExtractorTest, CoarseLevelKeypointsHaveNoPositionBias) {
+  const cv::Size size(640, 480);
+  const int k = 6;  // high-resolution oversampling
+  cv::Mat high(size.height * k, size.width * k, CV_8UC1, cv::Scalar(128));
+  std::mt19937 rng(5);
+  std::uniform_int_distribution<int> x(0, high.cols), y(0, high.rows), side(60, 400),
+      grey(0, 255);
+  for (int i = 0; i < 1500; ++i) {
+    const cv::Point p(x(rng), y(rng));
+    cv::rectangle(high, cv::Rect(p, cv::Size(side(rng), side(rng))), cv::Scalar(grey(rng)),
+                  cv::FILLED);
+  }
+  cv::Mat image;
+  cv::resize(high, image, size, 0, 0, cv::INTER_AREA);
+  OrbConfig config;
+  config.num_features = 3000;
+  OrbExtractor orb(config);
+  std::vector<cv::KeyPoint> kps;
+  cv::Mat desc;
+  orb.detectAndCompute(image, &kps, &desc);
+
+  OrbConfig single = config;
+  single.num_levels = 1;
+  OrbExtractor level0(single);
+  for (int level : {3, 5}) {
+    const float s = orb.scaleFactors()[level];
+    const cv::Size level_size(cvRound(size.width / s), cvRound(size.height / s));
+    cv::Mat truth_image;
+    cv::resize(high, truth_image, level_size, 0, 0, cv::INTER_AREA);
+    std::vector<cv::KeyPoint> truth;
+    level0.detectAndCompute(truth_image, &truth, nullptr);
+    const double sx = static_cast<double>(size.width) / level_size.width;
+    const double sy = static_cast<double>(size.height) / level_size.height;
+    double sum_dx = 0, sum_dy = 0;
+    int n = 0;
+    for (const auto& kp : kps) {
+      if (kp.octave != level) continue;
+      // The nearest true corner, in full-image pixels.
+      double best = 1.5 * s * 1.5 * s, dx = 0, dy = 0;
+      for (const auto& t : truth) {
+        const double tx = (t.pt.x + 0.5) * sx - 0.5, ty = (t.pt.y + 0.5) * sy - 0.5;
+        const double d2 = (kp.pt.x - tx) * (kp.pt.x - tx) + (kp.pt.y - ty) * (kp.pt.y - ty);
+        if (d2 < best) best = d2, dx = kp.pt.x - tx, dy = kp.pt.y - ty;
+      }
+      if (best < 1.5 * s * 1.5 * s) sum_dx += dx, sum_dy += dy, ++n;
+    }
+    ASSERT_GE(n, 30) << "level " << level;
+    EXPECT_LT(std::abs(sum_dx / n), 0.2) << "level " << level << ", " << n << " keypoints";
+    EXPECT_LT(std::abs(sum_dy / n), 0.2) << "level " << level << ", " << n << " keypoints";
+  }
+}
+
 TEST(OrbExtractorTest, ComputeAtReproducesDescriptors) {
   for (const bool real : {false, true}) {
     const cv::Mat image = real ? kittiImage() : corridorImage();
