@@ -255,8 +255,7 @@ TEST(OrbExtractorTest, CoarseLevelKeypointsHaveNoPositionBias) {
   const int k = 6;  // high-resolution oversampling
   cv::Mat high(size.height * k, size.width * k, CV_8UC1, cv::Scalar(128));
   std::mt19937 rng(5);
-  std::uniform_int_distribution<int> x(0, high.cols), y(0, high.rows), side(60, 400),
-      grey(0, 255);
+  std::uniform_int_distribution<int> x(0, high.cols), y(0, high.rows), side(60, 400), grey(0, 255);
   for (int i = 0; i < 1500; ++i) {
     const cv::Point p(x(rng), y(rng));
     cv::rectangle(high, cv::Rect(p, cv::Size(side(rng), side(rng))), cv::Scalar(grey(rng)),
