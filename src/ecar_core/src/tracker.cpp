@@ -97,8 +97,7 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
     result.message = "too few features (" + std::to_string(current_.size()) + ")";
     if (state_ == TrackingState::kOk) state_ = TrackingState::kLost;
   } else if (state_ == TrackingState::kOk) {
-    bool ok = (velocity_ && trackWithMotionModel()) || trackReferenceKeyFrame();
-    if (ok) ok = trackLocalMap() >= config_.min_inliers;
+    const bool ok = trackFromLastFrame() >= config_.min_inliers;
     if (!ok) {
       state_ = TrackingState::kLost;
       result.message = "tracking lost";
@@ -128,6 +127,7 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
       if (needKeyFrame()) result.new_keyframe = createKeyFrame();
     }
     last_T_c_w_ = T_c_w_;
+    last_inliers_ = static_cast<int>(std::count(inliers_.begin(), inliers_.end(), true));
     last_ = current_;
     last_matches_ = matches_;
     for (size_t i = 0; i < last_matches_.size(); ++i) {
@@ -195,6 +195,32 @@ int Tracker::optimiseCurrentPose() {
   }
   (void)r;
   return n;
+}
+
+int Tracker::trackFromLastFrame() {
+  int inliers = 0;
+  if (velocity_ && trackWithMotionModel()) inliers = trackLocalMap();
+  // A wrong motion prediction (a shake reversing, a sudden turn) can still
+  // give a pose with a few dozen inliers; when the result is much weaker than
+  // the last frame's, the reference keyframe (matching by descriptor, no
+  // prediction needed) gets its chance and the better pose wins.
+  if (inliers >= config_.min_inliers && inliers >= config_.weak_tracking_ratio * last_inliers_) {
+    return inliers;
+  }
+  const SE3 T_motion = T_c_w_;
+  const std::vector<MapPointId> matches_motion = matches_;
+  const std::vector<bool> inliers_motion = inliers_;
+  const std::vector<KeyFrameId> local_motion = local_keyframes_;
+  const KeyFrameId reference_motion = reference_kf_;
+  int reference_inliers = 0;
+  if (trackReferenceKeyFrame()) reference_inliers = trackLocalMap();
+  if (reference_inliers > inliers) return reference_inliers;
+  T_c_w_ = T_motion;
+  matches_ = matches_motion;
+  inliers_ = inliers_motion;
+  local_keyframes_ = local_motion;
+  reference_kf_ = reference_motion;
+  return inliers;
 }
 
 bool Tracker::trackWithMotionModel() {
@@ -409,43 +435,95 @@ void Tracker::fillResult(TrackResult* result) const {
 }
 
 bool Tracker::initialise(TrackResult* result) {
-  if (!init_frame_ || init_tries_ >= config_.init_max_frames ||
-      static_cast<int>(init_frame_->size()) < config_.init_min_matches) {
-    if (static_cast<int>(current_.size()) >= config_.init_min_matches) {
-      init_frame_ = current_;
-      init_tries_ = 0;
+  // Two-view initialisation against a pool of recent views: a hand-held
+  // shake or a slow start reaches enough parallax only with the right earlier
+  // view, not necessarily the first one. Each upload tries the candidates with
+  // the largest median keypoint displacement first (a cheap proxy for the
+  // baseline), at most init_attempts of them.
+  const auto remember = [this] {
+    if (static_cast<int>(current_.size()) < config_.init_min_matches) return;
+    init_candidates_.push_back(current_);
+    while (static_cast<int>(init_candidates_.size()) > std::max(1, config_.init_candidates)) {
+      init_candidates_.pop_front();
     }
+  };
+  if (init_candidates_.empty()) {
+    remember();
     result->message = "initialising: first view taken";
     return false;
   }
-  ++init_tries_;
-  std::vector<int> m12;
-  const int n = searchForInitialization(*init_frame_, current_, config_.init_window, &m12);
-  if (n < config_.init_min_matches) {
-    result->message = "initialising: " + std::to_string(n) + " matches";
-    if (n < config_.init_min_matches / 2) init_frame_ = current_, init_tries_ = 0;
+  struct Attempt {
+    size_t candidate;
+    double displacement;
+    std::vector<int> m12;
+  };
+  std::vector<Attempt> attempts;
+  int best_count = 0;
+  for (size_t c = 0; c < init_candidates_.size(); ++c) {
+    Attempt a{c, 0.0, {}};
+    const Frame& first = init_candidates_[c];
+    const int n = searchForInitialization(first, current_, config_.init_window, &a.m12);
+    best_count = std::max(best_count, n);
+    if (n < config_.init_min_matches) continue;
+    std::vector<double> d;
+    d.reserve(static_cast<size_t>(n));
+    for (size_t i = 0; i < a.m12.size(); ++i) {
+      if (a.m12[i] >= 0)
+        d.push_back((current_.undistorted[a.m12[i]] - first.undistorted[i]).norm());
+    }
+    std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+    a.displacement = d[d.size() / 2];
+    attempts.push_back(std::move(a));
+  }
+  if (attempts.empty()) {
+    result->message = "initialising: " + std::to_string(best_count) + " matches";
+    // The scene changed: older views no longer help.
+    if (best_count < config_.init_min_matches / 2) init_candidates_.clear();
+    remember();
     return false;
   }
-  std::vector<Eigen::Vector2d> p1, p2;
-  std::vector<std::pair<int, int>> pairs;
-  for (size_t i = 0; i < m12.size(); ++i) {
-    if (m12[i] < 0) continue;
-    p1.push_back(init_frame_->undistorted[i]);
-    p2.push_back(current_.undistorted[m12[i]]);
-    pairs.emplace_back(static_cast<int>(i), m12[i]);
+  std::sort(attempts.begin(), attempts.end(),
+            [](const Attempt& a, const Attempt& b) { return a.displacement > b.displacement; });
+  if (static_cast<int>(attempts.size()) > config_.init_attempts) {
+    attempts.resize(static_cast<size_t>(std::max(1, config_.init_attempts)));
   }
   Eigen::Matrix3d K;
   K << K_.fx, 0, K_.cx, 0, K_.fy, K_.cy, 0, 0, 1;
-  const TwoViewResult tv = reconstructTwoView(p1, p2, K, config_.two_view, current_.frame_index);
-  if (!tv.success) {
-    result->message = "initialising: " + tv.reason;
+  std::optional<TwoViewResult> chosen;
+  const Frame* first = nullptr;
+  std::vector<std::pair<int, int>> pairs;
+  for (const Attempt& a : attempts) {
+    std::vector<Eigen::Vector2d> p1, p2;
+    std::vector<std::pair<int, int>> candidate_pairs;
+    const Frame& f1 = init_candidates_[a.candidate];
+    for (size_t i = 0; i < a.m12.size(); ++i) {
+      if (a.m12[i] < 0) continue;
+      p1.push_back(f1.undistorted[i]);
+      p2.push_back(current_.undistorted[a.m12[i]]);
+      candidate_pairs.emplace_back(static_cast<int>(i), a.m12[i]);
+    }
+    TwoViewResult tv = reconstructTwoView(p1, p2, K, config_.two_view, current_.frame_index);
+    if (!tv.success) {
+      result->message = "initialising: " + tv.reason;
+      continue;
+    }
+    chosen = std::move(tv);
+    result->message.clear();
+    first = &f1;
+    pairs = std::move(candidate_pairs);
+    break;
+  }
+  if (!chosen) {
+    remember();
     return false;
   }
+  const Frame& init_frame = *first;  // the pool is cleared only at the end
+  const TwoViewResult& tv = *chosen;
   // Scale: metric from odometry when both views have it, else median depth 1.
   double scale = 1.0;
-  if (init_frame_->T_o_c && current_.T_o_c) {
+  if (init_frame.T_o_c && current_.T_o_c) {
     const double baseline =
-        (current_.T_o_c->translation() - init_frame_->T_o_c->translation()).norm();
+        (current_.T_o_c->translation() - init_frame.T_o_c->translation()).norm();
     if (baseline > 1e-3) scale = baseline / tv.T_c2_c1.translation().norm();
   } else {
     std::vector<double> depths;
@@ -456,7 +534,7 @@ bool Tracker::initialise(TrackResult* result) {
     std::nth_element(depths.begin(), depths.begin() + depths.size() / 2, depths.end());
     scale = 1.0 / depths[depths.size() / 2];
   }
-  const SE3 T_c1_w = initialWorldFrame(init_frame_->gravity_c);
+  const SE3 T_c1_w = initialWorldFrame(init_frame.gravity_c);
   SE3 T_c2_c1 = tv.T_c2_c1;
   T_c2_c1.translation() *= scale;
   const SE3 T_c2_w = T_c2_c1 * T_c1_w;
@@ -465,10 +543,10 @@ bool Tracker::initialise(TrackResult* result) {
   if (map_->initialized()) return false;  // another device was faster: relocalise next time
   KeyFrame kf1, kf2;
   kf1.device = kf2.device = device_;
-  kf1.frame_index = init_frame_->frame_index;
-  kf1.timestamp = init_frame_->timestamp;
+  kf1.frame_index = init_frame.frame_index;
+  kf1.timestamp = init_frame.timestamp;
   kf1.T_c_w = T_c1_w;
-  kf1.features = *init_frame_;
+  kf1.features = init_frame;
   kf2.frame_index = current_.frame_index;
   kf2.timestamp = current_.timestamp;
   kf2.T_c_w = T_c2_w;
@@ -490,13 +568,13 @@ bool Tracker::initialise(TrackResult* result) {
   map_->updateCovisibility(id1);
   map_->updateCovisibility(id2);
   lock.unlock();
-  index_->add(id1, init_frame_->descriptors);
+  index_->add(id1, init_frame.descriptors);
   mapper_->insert(id2);  // refine the two-view map with BA and new points
   T_c_w_ = T_c2_w;
   reference_kf_ = id2;
   local_keyframes_ = {id1, id2};
   frames_since_keyframe_ = 0;
-  init_frame_.reset();
+  init_candidates_.clear();
   result->new_keyframe = id2;
   return true;
 }

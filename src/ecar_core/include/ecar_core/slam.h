@@ -42,10 +42,14 @@ struct SlamConfig {
   PoseOptimizerConfig pose;
   BaConfig ba;
   PlaceIndexConfig place;
-  int init_min_matches = 100;        ///< correspondences needed to try two-view
-  double init_window = 100.0;        ///< px search window between the two views
-  int init_max_frames = 10;          ///< renew the first view after this many tries
-  int min_inliers = 30;              ///< tracking OK needs this many inliers
+  int init_min_matches = 100;  ///< correspondences needed to try two-view
+  double init_window = 100.0;  ///< px search window between the two views
+  int init_candidates = 10;    ///< recent views kept as first-view candidates
+  int init_attempts = 5;       ///< two-view reconstructions tried per image
+  int min_inliers = 30;        ///< tracking OK needs this many inliers
+  /// Below this fraction of the last image's inliers, the motion-model result
+  /// is checked against tracking from the reference keyframe.
+  double weak_tracking_ratio = 0.5;
   double projection_radius = 15.0;   ///< px (x pyramid scale) for motion-model search
   double local_map_radius = 4.0;     ///< px (x scale) for the local-map search
   int local_keyframes = 25;          ///< keyframes in the tracking local map
@@ -95,6 +99,7 @@ class Tracker {
 
  private:
   bool initialise(TrackResult* result);
+  int trackFromLastFrame();  ///< inliers after the local-map search
   bool trackWithMotionModel();
   bool trackReferenceKeyFrame();
   bool relocalise();
@@ -118,6 +123,7 @@ class Tracker {
   Frame current_, last_;
   SE3 T_c_w_ = SE3::Identity(), last_T_c_w_ = SE3::Identity();
   std::vector<MapPointId> matches_, last_matches_;
+  int last_inliers_ = 0;
   std::vector<bool> inliers_;
   std::optional<SE3> velocity_;  ///< T_c_last: motion from the last frame to the current
   KeyFrameId reference_kf_;
@@ -125,8 +131,7 @@ class Tracker {
   uint32_t frames_since_keyframe_ = 0;
   int relocalisations_ = 0;
   // Initialisation.
-  std::optional<Frame> init_frame_;
-  int init_tries_ = 0;
+  std::deque<Frame> init_candidates_;
 };
 
 class LocalMapper {
