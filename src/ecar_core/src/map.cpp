@@ -94,6 +94,19 @@ void Map::addObservation(MapPointId pid, KeyFrameId kid, int idx) {
   MapPoint* p = mutablePoint(pid);
   KeyFrame* kf = mutableKeyFrame(kid);
   if (!p || !kf || idx < 0 || idx >= static_cast<int>(kf->points.size())) return;
+  // One keypoint per point and keyframe, one point per keypoint: whatever
+  // held either end before lets go of it.
+  const auto it = p->observations.find(kid);
+  if (it != p->observations.end() && it->second != idx && it->second >= 0 &&
+      it->second < static_cast<int>(kf->points.size()) && kf->points[it->second] == pid) {
+    kf->points[it->second] = MapPointId();
+  }
+  const MapPointId previous = kf->points[idx];
+  if (previous.valid() && previous != pid) {
+    eraseObservation(previous, kid);  // may erase `previous`, never p or kf
+    p = mutablePoint(pid);
+    kf = mutableKeyFrame(kid);
+  }
   p->observations[kid] = idx;
   kf->points[idx] = pid;
 }
@@ -177,7 +190,7 @@ void Map::updatePointStatistics(MapPointId pid) {
   int ref_idx = -1;
   for (const auto& obs : p->observations) {
     const KeyFrame* kf = keyframe(obs.first);
-    if (!kf) continue;
+    if (!kf || obs.second >= kf->features.descriptors.rows) continue;
     descs.push_back(kf->features.descriptors.ptr<uint8_t>(obs.second));
     normal += (p->p_w - kf->center()).normalized();
     if (obs.first == p->reference || !ref) {
@@ -235,6 +248,46 @@ void Map::updateCovisibility(KeyFrameId kid) {
     kf->covisibility[kv.first] = kv.second;
     if (KeyFrame* other = mutableKeyFrame(kv.first)) other->covisibility[kid] = kv.second;
   }
+}
+
+std::string Map::checkConsistency() const {
+  const auto name = [](const char* what, uint32_t id) {
+    return std::string(what) + std::to_string(id);
+  };
+  for (const auto& [pid, p] : points_) {
+    if (p.id != pid) return name("point stored under the wrong id ", pid.value);
+    if (!p.p_w.allFinite()) return name("non-finite position of point ", pid.value);
+    for (const auto& [kid, idx] : p.observations) {
+      const KeyFrame* kf = keyframe(kid);
+      if (!kf) return name("point ", pid.value) + name(" observed by missing keyframe ", kid.value);
+      if (idx < 0 || idx >= static_cast<int>(kf->points.size()) || kf->points[idx] != pid) {
+        return name("point ", pid.value) + name(" not at its keypoint in keyframe ", kid.value);
+      }
+    }
+  }
+  for (const auto& [kid, kf] : keyframes_) {
+    if (kf.id != kid) return name("keyframe stored under the wrong id ", kid.value);
+    if (kf.points.size() != kf.features.size()) {
+      return name("keyframe ", kid.value) + " has a point slot count unlike its keypoints";
+    }
+    for (size_t i = 0; i < kf.points.size(); ++i) {
+      if (!kf.points[i].valid()) continue;
+      const MapPoint* p = point(kf.points[i]);
+      if (!p) continue;  // a culled point: looked up and skipped by every reader
+      const auto it = p->observations.find(kid);
+      if (it == p->observations.end() || it->second != static_cast<int>(i)) {
+        return name("keyframe ", kid.value) + name(" holds point ", kf.points[i].value) +
+               " that does not record the observation";
+      }
+    }
+    for (const auto& link : kf.covisibility) {
+      if (!keyframe(link.first)) {
+        return name("keyframe ", kid.value) +
+               name(" linked to missing keyframe ", link.first.value);
+      }
+    }
+  }
+  return {};
 }
 
 void Map::clear() {

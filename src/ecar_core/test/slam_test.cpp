@@ -2,6 +2,10 @@
 // mapping, several devices in one map, and bad images.
 #include "ecar_core/slam.h"
 
+#include <atomic>
+#include <chrono>
+#include <thread>
+
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
@@ -157,6 +161,54 @@ TEST(SlamTest, TwoDevicesEndInOneMap) {
   for (const auto& id : slam.map().keyframeIds()) has[slam.map().keyframe(id)->device.value] = true;
   EXPECT_TRUE(has[1]);
   EXPECT_TRUE(has[2]);
+}
+
+// Trackers of two devices on their own threads and the mapper on its thread,
+// against one map, while a reader checks the map's invariants: the server's
+// concurrency. (Run under -fsanitize=thread to check for data races too.)
+TEST(SlamTest, ConcurrentTrackersAndMapperKeepTheMapConsistent) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto a = renderUploads(scene, renderer, "device_0", 4, 30);
+  const auto b = renderUploads(scene, renderer, "device_2", 4, 30);
+  SlamConfig config;
+  config.synchronous_mapping = false;
+  SlamSystem slam(renderer.camera(), config);
+  std::atomic<bool> done{false};
+  std::vector<std::string> problems;
+  std::thread checker([&] {
+    while (!done) {
+      {
+        auto lock = slam.map().readLock();
+        const std::string problem = slam.map().checkConsistency();
+        if (!problem.empty()) problems.push_back(problem);
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+  });
+  int tracked[2] = {0, 0};
+  const auto run = [&](int d) {
+    const auto& ups = d == 0 ? a : b;
+    for (size_t i = 0; i < ups.size(); ++i) {
+      const auto r = slam.track(DeviceId(d + 1), ups[i].image, ups[i].motion.timestamp,
+                                ups[i].frame, ups[i].motion.gravity_c);
+      tracked[d] += r.state == TrackingState::kOk ? 1 : 0;
+      // Paced like uploads (7.5 per second, sped up), so the devices interleave.
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+  };
+  std::thread first(run, 0), second(run, 1);
+  first.join();
+  second.join();
+  slam.mapper().stopThread();
+  done = true;
+  checker.join();
+  EXPECT_TRUE(problems.empty()) << problems.front();
+  auto lock = slam.map().readLock();
+  EXPECT_EQ(slam.map().checkConsistency(), "");
+  EXPECT_GE(slam.map().numKeyFrames(), 5u);
+  // One device created the map; together they tracked most uploads.
+  EXPECT_GE(tracked[0] + tracked[1], 30) << tracked[0] << " + " << tracked[1];
 }
 
 TEST(SlamTest, BadImagesAreReportedAndSkipped) {

@@ -15,6 +15,7 @@
 #include <mutex>
 #include <optional>
 #include <shared_mutex>
+#include <string>
 #include <unordered_map>
 #include <vector>
 
@@ -88,6 +89,10 @@ class Map {
   /// Epoch of the map: changes on reset/load (devices drop what they hold).
   uint32_t epoch() const { return epoch_; }
   bool initialized() const { return !keyframes_.empty(); }
+  /// Checks the map's invariants: every observation is recorded on both sides
+  /// (point -> keyframe keypoint and back), and ids refer to live entries.
+  /// Returns the first violation found, empty when consistent.
+  std::string checkConsistency() const;
 
   // ---- write access (hold writeLock)
   KeyFrame* mutableKeyFrame(KeyFrameId id);
