@@ -303,6 +303,12 @@ struct Motion {
 /// Triangulation of a model's inliers under one motion hypothesis.
 struct MotionCheck {
   int num_good = 0;  ///< positive depth in both views, small reprojection error
+  /// Good points plus those whose rays are consistent with a point at infinity
+  /// (too little parallax to tell their depth, or even its sign): all that the
+  /// motion explains. ORB-SLAM counts these too when it asks that the motion
+  /// explain 90% of the model's inliers; without them a scene with a distant
+  /// background (a street) never initialises.
+  int num_consistent = 0;
   std::vector<bool> good;
   std::vector<Eigen::Vector3d> points_c1;
   std::vector<double> parallax_deg;  ///< per point (good points only meaningful)
@@ -335,12 +341,22 @@ MotionCheck checkMotion(const Motion& motion, const std::vector<Eigen::Vector2d>
   std::vector<double> good_parallax;
   for (size_t i = 0; i < p1.size(); ++i) {
     if (!inliers[i]) continue;
+    // A point at infinity along ray 1 appears at K R x1 in image 2 (depth sign
+    // free: a far point seen with the baseline reversed looks the same).
+    const Eigen::Vector3d ray2 = motion.R * x1[i].homogeneous();
+    const Eigen::Vector3d at_infinity = K * (ray2.z() < 0.0 ? Eigen::Vector3d(-ray2) : ray2);
+    const bool far_consistent =
+        at_infinity.z() > 0.0 && (p2[i] - at_infinity.hnormalized()).squaredNorm() <= th2;
     const std::optional<Eigen::Vector3d> p = triangulate(SE3::Identity(), T_c2_c1, x1[i], x2[i]);
-    if (!p) continue;
-    const Eigen::Vector3d p_c2 = T_c2_c1 * *p;
-    const double e1 = (p1[i] - (K * *p).hnormalized()).squaredNorm();
-    const double e2 = (p2[i] - (K * p_c2).hnormalized()).squaredNorm();
-    if (!(e1 <= th2) || !(e2 <= th2)) continue;
+    bool good = static_cast<bool>(p);
+    if (good) {
+      const Eigen::Vector3d p_c2 = T_c2_c1 * *p;
+      const double e1 = (p1[i] - (K * *p).hnormalized()).squaredNorm();
+      const double e2 = (p2[i] - (K * p_c2).hnormalized()).squaredNorm();
+      good = e1 <= th2 && e2 <= th2;
+    }
+    if (good || far_consistent) ++out.num_consistent;
+    if (!good) continue;
     out.good[i] = true;
     out.points_c1[i] = *p;
     out.parallax_deg[i] = parallaxDeg(*p, Eigen::Vector3d::Zero(), c2_c1);
@@ -715,9 +731,12 @@ TwoViewResult reconstructTwoView(const std::vector<Eigen::Vector2d>& pts1,
     return refuse(result, "too few triangulated points: " + std::to_string(result.num_valid) +
                               " < " + std::to_string(config.min_triangulated));
   }
-  if (result.num_valid < config.min_triangulated_ratio * num_inliers) {
-    return refuse(result, "too few triangulated points: " + std::to_string(result.num_valid) +
-                              " of " + std::to_string(num_inliers) + " inliers");
+  // The motion must explain nearly all the model's inliers (valid points, or
+  // far points consistent with it), else the model or the hypothesis is wrong.
+  if (check.num_consistent < config.min_triangulated_ratio * num_inliers) {
+    return refuse(
+        result, "too few points explained by the motion: " + std::to_string(check.num_consistent) +
+                    " of " + std::to_string(num_inliers) + " inliers");
   }
   result.parallax_deg = median(std::move(valid_parallax));
   result.T_c2_c1.linear() = motion.R;

@@ -248,6 +248,36 @@ TEST(TwoViewTest, GeneralSceneForwardMotion) {
   expectMotionAndStructure(s, r, 0.5, 2.0, 0.04, 0.06);
 }
 
+// A car driving forward down a street: near points give the baseline, but
+// most points are far (parallax below the noise, depth sign unknown). The
+// motion explains them as points at infinity: they must not veto it.
+TEST(TwoViewTest, ForwardMotionWithDistantBackground) {
+  std::mt19937 rng(21);
+  const SE3 T_c2_c1 =
+      secondCamera(Eigen::Vector3d(0.02, 0.0, 1.0), Eigen::Vector3d(0.0, 1.0 / kRadToDeg, 0.0));
+  Scene s = makeScene(T_c2_c1, Structure::kGeneral, 120, 1.0, 0.05, &rng, 5.0, 20.0);
+  const Scene far = makeScene(T_c2_c1, Structure::kGeneral, 180, 1.0, 0.05, &rng, 150.0, 400.0);
+  s.points_c1.insert(s.points_c1.end(), far.points_c1.begin(), far.points_c1.end());
+  s.pts1.insert(s.pts1.end(), far.pts1.begin(), far.pts1.end());
+  s.pts2.insert(s.pts2.end(), far.pts2.begin(), far.pts2.end());
+  s.outlier.insert(s.outlier.end(), far.outlier.begin(), far.outlier.end());
+  const TwoViewResult r = reconstructTwoView(s.pts1, s.pts2, intrinsics(), TwoViewConfig());
+  ASSERT_TRUE(r.success) << r.reason;
+  EXPECT_FALSE(r.used_homography);
+  // Forward, not backward: the camera centre moves along +z of camera 1.
+  const Eigen::Vector3d c2_c1 = -r.T_c2_c1.linear().transpose() * r.T_c2_c1.translation();
+  EXPECT_GT(c2_c1.z(), 0.95);
+  EXPECT_LT(angleDeg(r.T_c2_c1.translation(), T_c2_c1.translation()), 3.0);
+  // The near points are the valid ones; the far ones are not returned.
+  int near_valid = 0, far_valid = 0;
+  for (size_t i = 0; i < s.pts1.size(); ++i) {
+    if (!r.valid[i] || s.outlier[i]) continue;
+    (i < 120 ? near_valid : far_valid)++;
+  }
+  EXPECT_GT(near_valid, 80);
+  EXPECT_LT(far_valid, 20);
+}
+
 TEST(TwoViewTest, PlanarSceneChoosesHomography) {
   std::mt19937 rng(11);
   const SE3 T_c2_c1 =

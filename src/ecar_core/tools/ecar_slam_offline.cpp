@@ -2,7 +2,7 @@
 //
 //   ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]
 //                     [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]
-//                     [--devices DIR2 ...] [--no-odometry] [--threads]
+//                     [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]
 //
 // Every Nth frame of each dataset is (optionally) JPEG-compressed at quality Q,
 // decoded, and tracked; several datasets run interleaved by time into one map.
@@ -44,12 +44,13 @@ struct Args {
   bool threads = false;
   bool verbose = false;
   bool sequential = false;
+  int orb_features = 0;  // 0: the library default
 };
 
 void usage(std::ostream& os) {
   os << "usage: ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]\n"
         "         [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]\n"
-        "         [--devices DIR2 ...] [--no-odometry] [--threads]\n"
+        "         [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]\n"
         "  --every N         track every Nth frame (the server sees every 4th)\n"
         "  --jpeg-quality Q  JPEG-compress each image at quality Q (1-100) first\n"
         "  --frames N        only the first N frames of each dataset\n"
@@ -57,7 +58,8 @@ void usage(std::ostream& os) {
         "  --no-odometry     ignore the datasets' odometry (scale from median depth)\n"
         "  --threads         local mapping on its own thread (default: after each keyframe)\n"
         "  --verbose         one line per upload (state, tracked points, why it failed)\n"
-        "  --sequential      run the datasets one after another (later ones join the map)\n";
+        "  --sequential      run the datasets one after another (later ones join the map)\n"
+        "  --orb-features N  ORB keypoints per image (default 1000; large images want more)\n";
 }
 
 Args parse(int argc, char** argv) {
@@ -106,6 +108,8 @@ Args parse(int argc, char** argv) {
       a.verbose = true;
     } else if (k == "--sequential") {
       a.sequential = true;
+    } else if (k == "--orb-features") {
+      a.orb_features = integer(100, 100000);
     } else if (k == "--help" || k == "-h") {
       usage(std::cout);
       std::exit(0);
@@ -155,6 +159,7 @@ int run(const Args& args) {
   }
   ecar::SlamConfig config;
   config.synchronous_mapping = !args.threads;
+  if (args.orb_features > 0) config.orb.num_features = args.orb_features;
   ecar::SlamSystem slam(camera, config);
   bool metric = args.use_odometry;
   for (const auto& r : runs) {

@@ -29,7 +29,7 @@ struct TwoViewConfig {
   double sigma = 1.0;                   ///< pixel noise (px) for the model scores / inlier tests
   double min_parallax_deg = 1.0;        ///< median parallax of the triangulated points
   int min_triangulated = 50;            ///< points with parallax and positive depth
-  double min_triangulated_ratio = 0.9;  ///< of the model's inliers
+  double min_triangulated_ratio = 0.9;  ///< of the model's inliers, explained (incl. far points)
   /// Homography chosen when S_H / (S_H + S_F) exceeds this (ORB-SLAM's heuristic).
   double homography_ratio = 0.40;
   /// The best motion hypothesis must triangulate clearly more points than the
