@@ -217,18 +217,25 @@ bool Tracker::trackWithMotionModel() {
   {
     auto lock = map_->readLock();
     std::vector<MapPointId> ids;
-    std::vector<int> octaves;
+    std::vector<int> octaves, rows;
     for (size_t i = 0; i < last_matches_.size(); ++i) {
       if (last_matches_[i].valid()) {
         ids.push_back(last_matches_[i]);
         octaves.push_back(last_.keypoints[i].octave);
+        rows.push_back(static_cast<int>(i));
       }
     }
     samples = samplesOf(ids);
-    // Octave hints from the last frame (samples keep the order of ids).
+    // Octave hints and descriptors from the last frame (samples keep the order
+    // of ids): its view is the closest to the current one, also for points
+    // another device mapped from the other side.
     size_t k = 0;
     for (size_t i = 0; i < ids.size() && k < samples.size(); ++i) {
-      if (samples[k].id == ids[i]) samples[k++].octave_hint = octaves[i];
+      if (samples[k].id != ids[i]) continue;
+      samples[k].octave_hint = octaves[i];
+      const uint8_t* d = last_.descriptors.ptr<uint8_t>(rows[i]);
+      std::copy(d, d + 32, samples[k].descriptor.begin());
+      ++k;
     }
   }
   matches_.assign(current_.size(), MapPointId());
@@ -250,10 +257,22 @@ bool Tracker::trackReferenceKeyFrame() {
     const KeyFrame* kf = map_->keyframe(reference_kf_);
     if (!kf) return false;
     std::vector<MapPointId> ids;
-    for (const auto& id : kf->points) {
-      if (id.valid()) ids.push_back(id);
+    std::vector<int> rows;
+    for (size_t i = 0; i < kf->points.size(); ++i) {
+      if (kf->points[i].valid()) {
+        ids.push_back(kf->points[i]);
+        rows.push_back(static_cast<int>(i));
+      }
     }
     samples = samplesOf(ids);
+    // The keyframe's own descriptors: its view is closer to the current one
+    // than the representative descriptor (which may come from another side).
+    size_t k = 0;
+    for (size_t i = 0; i < ids.size() && k < samples.size(); ++i) {
+      if (samples[k].id != ids[i]) continue;
+      const uint8_t* d = kf->features.descriptors.ptr<uint8_t>(rows[i]);
+      std::copy(d, d + 32, samples[k++].descriptor.begin());
+    }
   }
   T_c_w_ = last_T_c_w_;
   matches_.assign(current_.size(), MapPointId());
