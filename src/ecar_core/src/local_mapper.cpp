@@ -10,8 +10,13 @@
 namespace ecar {
 
 LocalMapper::LocalMapper(Map* map, PlaceIndex* index, const PinholeCamera& camera,
-                         const SlamConfig& config)
-    : map_(map), index_(index), camera_(camera), K_(intrinsicsOf(camera)), config_(config) {}
+                         const SlamConfig& config, KeypointIndex* keypoints)
+    : map_(map),
+      index_(index),
+      keypoints_(keypoints),
+      camera_(camera),
+      K_(intrinsicsOf(camera)),
+      config_(config) {}
 
 LocalMapper::~LocalMapper() { stopThread(); }
 
@@ -94,11 +99,18 @@ void LocalMapper::process(KeyFrameId kf) {
   localBundleAdjustment(kf);
   cullKeyFrames(kf);
   cv::Mat descriptors;
+  std::vector<int> point_rows;  // keypoints with a map point
   {
     auto lock = map_->readLock();
-    if (const KeyFrame* k = map_->keyframe(kf)) descriptors = k->features.descriptors;
+    if (const KeyFrame* k = map_->keyframe(kf)) {
+      descriptors = k->features.descriptors;
+      for (size_t i = 0; i < k->points.size(); ++i) {
+        if (map_->point(k->points[i])) point_rows.push_back(static_cast<int>(i));
+      }
+    }
   }
   if (!descriptors.empty()) index_->add(kf, descriptors);
+  if (!descriptors.empty() && keypoints_) keypoints_->add(kf, descriptors, point_rows);
 }
 
 void LocalMapper::cullRecentPoints(KeyFrameId kf) {
@@ -417,6 +429,7 @@ void LocalMapper::cullKeyFrames(KeyFrameId kf) {
       map_->eraseKeyFrame(nid);
       lock.unlock();
       index_->remove(nid);
+      if (keypoints_) keypoints_->remove(nid);
       lock.lock();
     }
   }
@@ -427,7 +440,8 @@ SlamSystem::SlamSystem(const PinholeCamera& camera, const SlamConfig& config)
       config_(config),
       map_(ScaleInfo::fromConfig(config.orb)),
       index_(config.place),
-      mapper_(&map_, &index_, camera, config) {
+      keypoint_index_(config.keypoints),
+      mapper_(&map_, &index_, camera, config, &keypoint_index_) {
   if (!config_.synchronous_mapping) mapper_.startThread();
 }
 
@@ -436,7 +450,10 @@ SlamSystem::~SlamSystem() { mapper_.stopThread(); }
 Tracker& SlamSystem::tracker(DeviceId device) {
   std::lock_guard<std::mutex> lock(trackers_mutex_);
   auto& t = trackers_[device];
-  if (!t) t = std::make_unique<Tracker>(device, &map_, &index_, &mapper_, camera_, config_);
+  if (!t) {
+    t = std::make_unique<Tracker>(device, &map_, &index_, &mapper_, camera_, config_,
+                                  &keypoint_index_);
+  }
   return *t;
 }
 

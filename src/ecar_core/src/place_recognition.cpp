@@ -8,6 +8,7 @@
 #include <string>
 
 #include "ecar_core/error.h"
+#include "ecar_core/features.h"
 
 namespace ecar {
 
@@ -402,6 +403,148 @@ size_t PlaceIndex::memoryBytes() const {
   bytes += document_of_.size() * (sizeof(std::pair<KeyFrameId, uint32_t>) + sizeof(void*)) +
            document_of_.bucket_count() * sizeof(void*);
   return bytes;
+}
+
+// ------------------------------------------------------------ KeypointIndex
+
+KeypointIndex::KeypointIndex(const KeypointIndexConfig& config) : config_(config) {
+  if (config_.tables < 1 || config_.tables > 64) {
+    throw Error("KeypointIndexConfig.tables must be in [1, 64], got " +
+                std::to_string(config_.tables));
+  }
+  if (config_.bits < 1 || config_.bits > 20) {
+    throw Error("KeypointIndexConfig.bits must be in [1, 20], got " + std::to_string(config_.bits));
+  }
+  std::mt19937 rng(config_.seed);
+  for (int t = 0; t < config_.tables; ++t) {
+    std::array<uint16_t, 8 * kDescriptorBytes> pool;
+    std::iota(pool.begin(), pool.end(), 0);
+    for (int b = 0; b < config_.bits; ++b) {
+      const size_t j = b + rng() % (pool.size() - b);
+      std::swap(pool[b], pool[j]);
+      bit_bytes_.push_back(static_cast<uint8_t>(pool[b] >> 3));
+      bit_masks_.push_back(static_cast<uint8_t>(1u << (pool[b] & 7)));
+    }
+  }
+  buckets_.resize(static_cast<size_t>(config_.tables) << config_.bits);
+}
+
+void KeypointIndex::wordsOf(const uint8_t* d, uint32_t* words) const {
+  const int bits = config_.bits;
+  for (int t = 0; t < config_.tables; ++t) {
+    const uint8_t* bytes = &bit_bytes_[t * bits];
+    const uint8_t* masks = &bit_masks_[t * bits];
+    uint32_t word = 0;
+    for (int b = 0; b < bits; ++b)
+      word |= static_cast<uint32_t>((d[bytes[b]] & masks[b]) != 0) << b;
+    words[t] = static_cast<uint32_t>(t) << bits | word;
+  }
+}
+
+void KeypointIndex::add(KeyFrameId id, const cv::Mat& descriptors, const std::vector<int>& rows) {
+  if (!id.valid()) throw Error("KeypointIndex::add: invalid keyframe id 0");
+  checkDescriptors(descriptors, "KeypointIndex::add");
+  for (int r : rows) {
+    if (r < 0 || r >= descriptors.rows) {
+      throw Error("KeypointIndex::add: row " + std::to_string(r) + " out of range");
+    }
+  }
+  std::vector<uint32_t> words(config_.tables);
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  removeLocked(id);
+  std::vector<uint32_t>& mine = entries_of_[id];
+  for (int r : rows) {
+    uint32_t e;
+    if (!free_entries_.empty()) {
+      e = free_entries_.back();
+      free_entries_.pop_back();
+    } else {
+      e = static_cast<uint32_t>(entries_.size());
+      entries_.emplace_back();
+    }
+    Entry& entry = entries_[e];
+    entry.keyframe = id;
+    entry.row = r;
+    std::copy(descriptors.ptr<uint8_t>(r), descriptors.ptr<uint8_t>(r) + kDescriptorBytes,
+              entry.descriptor.begin());
+    wordsOf(entry.descriptor.data(), words.data());
+    for (uint32_t w : words) buckets_[w].push_back(e);
+    mine.push_back(e);
+  }
+}
+
+void KeypointIndex::remove(KeyFrameId id) {
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  removeLocked(id);
+}
+
+void KeypointIndex::removeLocked(KeyFrameId id) {
+  const auto it = entries_of_.find(id);
+  if (it == entries_of_.end()) return;
+  std::vector<uint32_t> words(config_.tables);
+  for (uint32_t e : it->second) {
+    wordsOf(entries_[e].descriptor.data(), words.data());
+    for (uint32_t w : words) {
+      std::vector<uint32_t>& bucket = buckets_[w];
+      const auto p = std::find(bucket.begin(), bucket.end(), e);
+      if (p != bucket.end()) {
+        *p = bucket.back();
+        bucket.pop_back();
+      }
+    }
+    entries_[e] = Entry();
+    free_entries_.push_back(e);
+  }
+  entries_of_.erase(it);
+}
+
+size_t KeypointIndex::size() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return entries_of_.size();
+}
+
+size_t KeypointIndex::entries() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return entries_.size() - free_entries_.size();
+}
+
+std::vector<KeypointMatch> KeypointIndex::query(const cv::Mat& descriptors, int max_distance,
+                                                int per_row) const {
+  checkDescriptors(descriptors, "KeypointIndex::query");
+  std::vector<KeypointMatch> out;
+  if (descriptors.empty() || per_row <= 0) return out;
+  std::vector<uint32_t> words(config_.tables);
+  // Per entry: the query row that last looked at it (no entry is checked twice).
+  thread_local std::vector<int> seen;
+  std::vector<std::pair<int, uint32_t>> hits;  // (distance, entry)
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  seen.assign(entries_.size(), -1);
+  for (int r = 0; r < descriptors.rows; ++r) {
+    const uint8_t* d = descriptors.ptr<uint8_t>(r);
+    wordsOf(d, words.data());
+    hits.clear();
+    for (uint32_t w : words) {
+      for (uint32_t e : buckets_[w]) {
+        if (seen[e] == r) continue;
+        seen[e] = r;
+        const int dist = descriptorDistance(d, entries_[e].descriptor.data());
+        if (dist <= max_distance) hits.emplace_back(dist, e);
+      }
+    }
+    const size_t k = std::min<size_t>(per_row, hits.size());
+    std::partial_sort(
+        hits.begin(), hits.begin() + k, hits.end(), [this](const auto& a, const auto& b) {
+          if (a.first != b.first) return a.first < b.first;
+          const Entry& ea = entries_[a.second];
+          const Entry& eb = entries_[b.second];
+          return ea.keyframe != eb.keyframe ? ea.keyframe < eb.keyframe : ea.row < eb.row;
+        });
+    for (size_t i = 0; i < k; ++i) {
+      const Entry& e = entries_[hits[i].second];
+      out.push_back({r, e.keyframe, e.row, hits[i].first});
+    }
+  }
+  return out;
 }
 
 }  // namespace ecar

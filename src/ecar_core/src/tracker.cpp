@@ -16,6 +16,19 @@ double msSince(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
+// Whether a keyframe's pose agrees with its own gravity within tol_deg: the
+// map's z axis is up there (the map was initialised with gravity).
+bool gravityAlignedAt(const KeyFrame& kf, double tol_deg) {
+  const auto& g = kf.features.gravity_c;
+  if (!g || !g->allFinite() || g->norm() < 1.0) return false;
+  const Eigen::Vector3d up = kf.T_c_w.linear() * Eigen::Vector3d::UnitZ();
+  return up.dot(g->normalized()) > std::cos(tol_deg * M_PI / 180.0);
+}
+
+bool hasGravity(const Frame& f) {
+  return f.gravity_c && f.gravity_c->allFinite() && f.gravity_c->norm() >= 1.0;
+}
+
 // World frame of a new map: origin at the first camera, z up when gravity is
 // known (x along the camera's horizontal forward direction), otherwise the
 // first camera's frame.
@@ -47,10 +60,11 @@ const char* toString(TrackingState state) {
 }
 
 Tracker::Tracker(DeviceId device, Map* map, PlaceIndex* index, LocalMapper* mapper,
-                 const PinholeCamera& camera, const SlamConfig& config)
+                 const PinholeCamera& camera, const SlamConfig& config, KeypointIndex* keypoints)
     : device_(device),
       map_(map),
       index_(index),
+      keypoints_(keypoints),
       mapper_(mapper),
       camera_(camera),
       K_(intrinsicsOf(camera)),
@@ -229,18 +243,25 @@ bool Tracker::trackWithMotionModel() {
   {
     auto lock = map_->readLock();
     std::vector<MapPointId> ids;
-    std::vector<int> octaves;
+    std::vector<int> octaves, rows;
     for (size_t i = 0; i < last_matches_.size(); ++i) {
       if (last_matches_[i].valid()) {
         ids.push_back(last_matches_[i]);
         octaves.push_back(last_.keypoints[i].octave);
+        rows.push_back(static_cast<int>(i));
       }
     }
     samples = samplesOf(ids);
-    // Octave hints from the last frame (samples keep the order of ids).
+    // Octave hints and descriptors from the last frame (samples keep the order
+    // of ids): its view is the closest to the current one, also for points
+    // another device mapped from the other side.
     size_t k = 0;
     for (size_t i = 0; i < ids.size() && k < samples.size(); ++i) {
-      if (samples[k].id == ids[i]) samples[k++].octave_hint = octaves[i];
+      if (samples[k].id != ids[i]) continue;
+      samples[k].octave_hint = octaves[i];
+      const uint8_t* d = last_.descriptors.ptr<uint8_t>(rows[i]);
+      std::copy(d, d + 32, samples[k].descriptor.begin());
+      ++k;
     }
   }
   matches_.assign(current_.size(), MapPointId());
@@ -262,10 +283,22 @@ bool Tracker::trackReferenceKeyFrame() {
     const KeyFrame* kf = map_->keyframe(reference_kf_);
     if (!kf) return false;
     std::vector<MapPointId> ids;
-    for (const auto& id : kf->points) {
-      if (id.valid()) ids.push_back(id);
+    std::vector<int> rows;
+    for (size_t i = 0; i < kf->points.size(); ++i) {
+      if (kf->points[i].valid()) {
+        ids.push_back(kf->points[i]);
+        rows.push_back(static_cast<int>(i));
+      }
     }
     samples = samplesOf(ids);
+    // The keyframe's own descriptors: its view is closer to the current one
+    // than the representative descriptor (which may come from another side).
+    size_t k = 0;
+    for (size_t i = 0; i < ids.size() && k < samples.size(); ++i) {
+      if (samples[k].id != ids[i]) continue;
+      const uint8_t* d = kf->features.descriptors.ptr<uint8_t>(rows[i]);
+      std::copy(d, d + 32, samples[k++].descriptor.begin());
+    }
   }
   T_c_w_ = last_T_c_w_;
   matches_.assign(current_.size(), MapPointId());
@@ -333,7 +366,31 @@ int Tracker::trackLocalMap() {
   return inliers;
 }
 
-bool Tracker::relocalise() {
+bool Tracker::relocalise() { return relocaliseByPlace() || relocaliseByKeypoints(); }
+
+bool Tracker::gravityConsistent() const {
+  if (!hasGravity(current_)) return true;
+  bool aligned = false;
+  {
+    auto lock = map_->readLock();
+    const KeyFrame* kf = map_->keyframe(reference_kf_);
+    aligned = kf && gravityAlignedAt(*kf, config_.gravity_tolerance_deg);
+  }
+  if (!aligned) return true;  // nothing to compare with
+  const Eigen::Vector3d up = T_c_w_.linear() * Eigen::Vector3d::UnitZ();
+  return up.dot(current_.gravity_c->normalized()) >
+         std::cos(config_.gravity_tolerance_deg * M_PI / 180.0);
+}
+
+bool Tracker::verifyRelocalisation(std::vector<PointSample> samples) {
+  if (optimiseCurrentPose() < 10) return false;
+  for (auto& s : samples) s.normal.setZero();
+  searchByProjection(current_, T_c_w_, K_, map_->scale(), samples, 10.0, &matches_);
+  if (optimiseCurrentPose() < config_.min_inliers) return false;
+  return gravityConsistent();
+}
+
+bool Tracker::relocaliseByPlace() {
   const auto candidates =
       index_->query(current_.descriptors, config_.relocalisation_candidates, 0.5);
   for (const auto& c : candidates) {
@@ -368,12 +425,127 @@ bool Tracker::relocalise() {
     matches_.assign(current_.size(), MapPointId());
     for (int k : pnp.inliers) matches_[kp_index[k]] = m[kp_index[k]];
     T_c_w_ = pnp.T_c_w;
-    if (optimiseCurrentPose() < 10) continue;
-    // More matches by projection of the candidate's points, then refine.
-    searchByProjection(current_, T_c_w_, K_, map_->scale(), samples, 10.0, &matches_);
-    if (optimiseCurrentPose() < config_.min_inliers) continue;
     reference_kf_ = c.keyframe;
-    return true;
+    if (verifyRelocalisation(std::move(samples))) return true;
+  }
+  return false;
+}
+
+bool Tracker::relocaliseByKeypoints() {
+  if (!keypoints_) return false;
+  // Nearest indexed keypoints of each keypoint; the nearest distinct map
+  // point must pass a ratio test against the second.
+  const auto hits = keypoints_->query(current_.descriptors, kDescriptorThresholdLow, 4);
+  struct Putative {
+    int row;
+    MapPointId id;
+    Eigen::Vector3d p_w;
+    std::vector<KeyFrameId> observers;
+  };
+  std::vector<Putative> putative;
+  std::unordered_map<KeyFrameId, int> votes;
+  std::vector<std::pair<int, KeyFrameId>> ranked;  // (score, keyframe)
+  {
+    auto lock = map_->readLock();
+    for (size_t i = 0; i < hits.size();) {
+      size_t j = i;
+      const MapPoint* best = nullptr;
+      int best_d = 0, second_d = -1;
+      for (; j < hits.size() && hits[j].query_row == hits[i].query_row; ++j) {
+        const KeyFrame* kf = map_->keyframe(hits[j].keyframe);
+        if (!kf || hits[j].row >= static_cast<int>(kf->points.size())) continue;
+        const MapPoint* p = map_->point(kf->points[hits[j].row]);
+        if (!p) continue;
+        if (!best) {
+          best = p;
+          best_d = hits[j].distance;
+        } else if (p != best && second_d < 0) {
+          second_d = hits[j].distance;
+        }
+      }
+      const int row = hits[i].query_row;
+      i = j;
+      if (!best || (second_d >= 0 && best_d > config_.keypoint_ratio * second_d)) continue;
+      Putative pm{row, best->id, best->p_w, {}};
+      for (const auto& obs : best->observations) {
+        pm.observers.push_back(obs.first);
+        ++votes[obs.first];
+      }
+      putative.push_back(std::move(pm));
+    }
+    if (static_cast<int>(putative.size()) < config_.pnp.min_inliers) return false;
+    // A keyframe's score: its votes and those of its best neighbours.
+    for (const auto& kv : votes) {
+      int score = kv.second;
+      for (const auto& n : map_->bestCovisible(kv.first, 10)) {
+        const auto it = votes.find(n);
+        if (it != votes.end()) score += it->second;
+      }
+      ranked.push_back({score, kv.first});
+    }
+  }
+  std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) {
+    return a.first != b.first ? a.first > b.first : a.second < b.second;
+  });
+  Eigen::Matrix3d K;
+  K << K_.fx, 0, K_.cx, 0, K_.fy, K_.cy, 0, 0, 1;
+  std::unordered_set<KeyFrameId> tried;
+  int attempts = 0;
+  for (const auto& r : ranked) {
+    if (attempts >= config_.relocalisation_candidates) break;
+    if (r.first < config_.pnp.min_inliers) break;
+    if (tried.count(r.second)) continue;
+    ++attempts;
+    // The candidate's group: it and its best neighbours.
+    std::unordered_set<KeyFrameId> group = {r.second};
+    bool aligned = false;
+    std::vector<PointSample> samples;
+    {
+      auto lock = map_->readLock();
+      const KeyFrame* kf = map_->keyframe(r.second);
+      if (!kf) continue;
+      aligned = gravityAlignedAt(*kf, config_.gravity_tolerance_deg);
+      for (const auto& n : map_->bestCovisible(r.second, config_.keypoint_group)) group.insert(n);
+      std::unordered_set<MapPointId> seen;
+      std::vector<MapPointId> ids;
+      for (const auto& g : group) {
+        const KeyFrame* gk = map_->keyframe(g);
+        if (!gk) continue;
+        for (const auto& id : gk->points) {
+          if (id.valid() && seen.insert(id).second) ids.push_back(id);
+        }
+      }
+      samples = samplesOf(ids);
+    }
+    tried.insert(group.begin(), group.end());
+    std::vector<Eigen::Vector3d> pw;
+    std::vector<Eigen::Vector2d> px;
+    std::vector<const Putative*> used;
+    for (const auto& pm : putative) {
+      for (const auto& o : pm.observers) {
+        if (!group.count(o)) continue;
+        pw.push_back(pm.p_w);
+        px.push_back(current_.undistorted[pm.row]);
+        used.push_back(&pm);
+        break;
+      }
+    }
+    if (static_cast<int>(pw.size()) < config_.pnp.min_inliers) continue;
+    // With gravity in a gravity-aligned map only the yaw is unknown: a
+    // 2-point RANSAC that copes with the few inliers of a view from another
+    // direction.
+    PnpConfig pnp_config = config_.pnp;
+    pnp_config.ransac_iterations = std::max(pnp_config.ransac_iterations, 1000);
+    const PnpResult pnp = aligned && hasGravity(current_)
+                              ? solvePnpGravityRansac(pw, px, K, current_.gravity_c->normalized(),
+                                                      pnp_config, current_.frame_index + 1)
+                              : solvePnpRansac(pw, px, K, config_.pnp);
+    if (!pnp.success) continue;
+    matches_.assign(current_.size(), MapPointId());
+    for (int k : pnp.inliers) matches_[used[k]->row] = used[k]->id;
+    T_c_w_ = pnp.T_c_w;
+    reference_kf_ = r.second;
+    if (verifyRelocalisation(std::move(samples))) return true;
   }
   return false;
 }
@@ -567,8 +739,15 @@ bool Tracker::initialise(TrackResult* result) {
   }
   map_->updateCovisibility(id1);
   map_->updateCovisibility(id2);
+  std::vector<int> point_rows;
+  if (const KeyFrame* k1 = map_->keyframe(id1)) {
+    for (size_t i = 0; i < k1->points.size(); ++i) {
+      if (k1->points[i].valid()) point_rows.push_back(static_cast<int>(i));
+    }
+  }
   lock.unlock();
   index_->add(id1, init_frame.descriptors);
+  if (keypoints_) keypoints_->add(id1, init_frame.descriptors, point_rows);
   mapper_->insert(id2);  // refine the two-view map with BA and new points
   T_c_w_ = T_c2_w;
   reference_kf_ = id2;

@@ -294,5 +294,41 @@ TEST(PlaceIndexTest, ConcurrentAddRemoveAndQuery) {
   EXPECT_LE(index.size(), 40u);
 }
 
+TEST(KeypointIndexTest, FindsNearDescriptorsAndForgetsRemovedKeyframes) {
+  std::mt19937 rng(5);
+  KeypointIndex index;
+  const cv::Mat a = randomDescriptors(300, &rng), b = randomDescriptors(300, &rng);
+  std::vector<int> rows_a(300), rows_b;
+  std::iota(rows_a.begin(), rows_a.end(), 0);
+  for (int i = 0; i < 300; i += 2) rows_b.push_back(i);  // every other row only
+  index.add(KeyFrameId(1), a, rows_a);
+  index.add(KeyFrameId(2), b, rows_b);
+  EXPECT_EQ(index.size(), 2u);
+  EXPECT_EQ(index.entries(), 450u);
+  // Queries: rows of b with 10 flipped bits, and unrelated descriptors.
+  cv::Mat q = randomDescriptors(200, &rng);
+  for (int i = 0; i < 100; ++i) {
+    b.row(2 * i).copyTo(q.row(i));
+    flipBits(q.ptr<uint8_t>(i), 10, &rng);
+  }
+  const auto hits = index.query(q, 50, 2);
+  int found = 0, wrong = 0;
+  for (const auto& h : hits) {
+    EXPECT_LE(h.distance, 50);
+    if (h.query_row < 100 && h.keyframe == KeyFrameId(2) && h.row == 2 * h.query_row) {
+      ++found;
+    } else {
+      ++wrong;
+    }
+  }
+  EXPECT_GE(found, 95);  // LSH recall at 10 bits
+  EXPECT_LE(wrong, 2);   // random descriptors are ~128 bits apart
+  index.remove(KeyFrameId(2));
+  EXPECT_EQ(index.entries(), 300u);
+  for (const auto& h : index.query(q, 50, 2)) EXPECT_NE(h.keyframe, KeyFrameId(2));
+  EXPECT_THROW(index.add(KeyFrameId(3), a, {300}), Error);
+  EXPECT_THROW(KeypointIndex(KeypointIndexConfig{0, 14, 1}), Error);
+}
+
 }  // namespace
 }  // namespace ecar

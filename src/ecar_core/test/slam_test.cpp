@@ -29,13 +29,15 @@ struct Upload {
 
 // Every `every`th frame of a device, rendered and JPEG-compressed at quality 70.
 std::vector<Upload> renderUploads(const Scene& scene, const Renderer& renderer,
-                                  const std::string& device, int every, int max_uploads) {
+                                  const std::string& device, int every, int max_uploads,
+                                  size_t first = 0) {
   const auto motion = generateMotion(scene, scene.device(device), scene.camera.fps);
   std::vector<Upload> out;
   RenderOptions opt;
   opt.noise_sigma = static_cast<float>(scene.noise_sigma);
   RenderOutput r;
-  for (size_t i = 0; i < motion.size() && static_cast<int>(out.size()) < max_uploads; i += every) {
+  for (size_t i = first; i < motion.size() && static_cast<int>(out.size()) < max_uploads;
+       i += every) {
     opt.noise_seed = static_cast<uint32_t>(i);
     renderer.render(motion[i].T_w_c, opt, &r);
     std::vector<uint8_t> jpeg;
@@ -242,6 +244,41 @@ TEST(SlamTest, ConcurrentTrackersAndMapperKeepTheMapConsistent) {
   EXPECT_GE(slam.map().numKeyFrames(), 5u);
   // One device created the map; together they tracked most uploads.
   EXPECT_GE(tracked[0] + tracked[1], 30) << tracked[0] << " + " << tracked[1];
+}
+
+// device_1 walks the corridor the other way: it sees device_0's map from the
+// opposite side (floor and ceiling rotated 180 degrees in the image).
+TEST(SlamTest, DeviceWalkingTheOtherWayJoins) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto a = renderUploads(scene, renderer, "device_0", 4, 45);       // x 0.6 -> 7.3
+  const auto b = renderUploads(scene, renderer, "device_1", 4, 14, 462);  // x 13.0 -> 11.0
+  SlamSystem slam(renderer.camera());
+  std::vector<Eigen::Vector3d> est, gt;
+  for (const auto& u : a) {
+    const auto r =
+        slam.track(DeviceId(1), u.image, u.motion.timestamp, u.frame, u.motion.gravity_c);
+    if (r.state != TrackingState::kOk) continue;
+    est.push_back(r.T_w_c.translation());
+    gt.push_back(u.motion.T_w_c.translation());
+  }
+  const size_t device_0_poses = est.size();
+  ASSERT_GE(device_0_poses, 30u);
+  int joined = -1, tracked = 0;
+  for (size_t i = 0; i < b.size(); ++i) {
+    const auto r = slam.track(DeviceId(2), b[i].image, b[i].motion.timestamp, b[i].frame,
+                              b[i].motion.gravity_c);
+    if (r.state != TrackingState::kOk) continue;
+    if (joined < 0) joined = static_cast<int>(i);
+    ++tracked;
+    est.push_back(r.T_w_c.translation());
+    gt.push_back(b[i].motion.T_w_c.translation());
+  }
+  std::printf("joined at upload %d, tracked %d of %zu\n", joined, tracked, b.size());
+  ASSERT_GE(joined, 0) << "the device walking the other way never joined";
+  EXPECT_GE(tracked, static_cast<int>(b.size()) - joined - 2);
+  // One transform for both devices: the join is not a wrong alignment.
+  EXPECT_LT(ate(est, gt, true), 0.05);
 }
 
 TEST(SlamTest, BadImagesAreReportedAndSkipped) {

@@ -435,6 +435,32 @@ TEST(PnpTest, RecoversPoseWithOutliers) {
   EXPECT_LE(wrong, 3);
 }
 
+TEST(PnpTest, GravityPnpRecoversPoseWithNinetyPercentOutliers) {
+  std::mt19937 rng(41);
+  const PnpScene s = makePnpScene(400, 0.9, &rng);
+  // The world z axis in the camera frame, as an accelerometer would give it.
+  const Eigen::Vector3d up_c = s.T_c_w.linear() * Eigen::Vector3d::UnitZ();
+  PnpConfig config;
+  config.ransac_iterations = 1000;
+  const PnpResult r = solvePnpGravityRansac(s.points_w, s.pixels, intrinsics(), up_c, config, 3);
+  ASSERT_TRUE(r.success);
+  const SE3 dT = r.T_c_w * s.T_c_w.inverse();
+  EXPECT_LT((r.T_c_w.inverse().translation() - s.T_c_w.inverse().translation()).norm(), 0.02);
+  EXPECT_LT(rotationAngle(dT.linear()) * kRadToDeg, 0.3);
+  // The up axis is kept exactly.
+  EXPECT_GT((r.T_c_w.linear() * Eigen::Vector3d::UnitZ()).dot(up_c), 1.0 - 1e-9);
+  int wrong = 0;
+  for (int i : r.inliers) wrong += s.outlier[i] ? 1 : 0;
+  EXPECT_GT(static_cast<int>(r.inliers.size()) - wrong, 30);
+  EXPECT_LE(wrong, 3);
+  // Without enough inliers, or with a wrong up direction, it fails.
+  const std::vector<Eigen::Vector3d> p10(s.points_w.begin(), s.points_w.begin() + 10);
+  const std::vector<Eigen::Vector2d> u10(s.pixels.begin(), s.pixels.begin() + 10);
+  EXPECT_FALSE(solvePnpGravityRansac(p10, u10, intrinsics(), up_c, config).success);
+  const Eigen::Vector3d tilted = (up_c + Eigen::Vector3d(0.3, 0.0, 0.0)).normalized();
+  EXPECT_FALSE(solvePnpGravityRansac(s.points_w, s.pixels, intrinsics(), tilted, config).success);
+}
+
 TEST(PnpTest, TooFewPointsOrInliersFail) {
   std::mt19937 rng(37);
   const Eigen::Matrix3d K = intrinsics();

@@ -10,6 +10,15 @@
 // relocalisations, keyframes, map points, ATE against the ground truth (Sim(3)
 // without metric odometry, SE(3) with it; one transform for all devices), and
 // median / p95 times of ORB extraction, tracking and local BA.
+//
+// For a device that joins a map another device started: `joined_upload` (its
+// first tracked upload) and `first_overlap_upload`, the first upload whose
+// ground-truth view shares mapped ground with the other devices' keyframes
+// by then: at least kOverlapPoints points of the final map (aligned onto the
+// ground truth by the ATE transform) lie in its image at a distance within
+// 20% (about one ORB pyramid level) of the distance from which an earlier
+// keyframe of another device observed them. Occlusion is not modelled (fine
+// for the simulated box-shaped scenes). `join_delay_uploads` is the difference.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -17,6 +26,7 @@
 #include <iostream>
 #include <map>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -121,6 +131,10 @@ Args parse(int argc, char** argv) {
   return a;
 }
 
+// Map points another device's keyframes had observed from about the same
+// distance: the count an upload needs to "see mapped ground".
+constexpr int kOverlapPoints = 20;
+
 struct DeviceRun {
   explicit DeviceRun(ecar::Dataset d) : dataset(std::move(d)) {}
   ecar::Dataset dataset;
@@ -128,6 +142,7 @@ struct DeviceRun {
   std::vector<size_t> uploads;  // frame indices sent
   size_t next = 0;
   int tracked = 0, init_upload = -1, joined_upload = -1, relocalisations = 0;
+  int first_overlap_upload = -1;
   ecar::Trajectory estimate, truth;  // tracked uploads with ground truth
   ecar::Trajectory all_estimates;
 };
@@ -138,6 +153,68 @@ std::string deviceTrajectoryPath(const std::string& out, size_t device, size_t c
   const std::string stem = dot == std::string::npos ? out : out.substr(0, dot);
   const std::string ext = dot == std::string::npos ? "" : out.substr(dot);
   return stem + "_device" + std::to_string(device) + ext;
+}
+
+// Sets first_overlap_upload of every device that did not start the map (see
+// the file comment).
+void firstOverlapUploads(const ecar::SlamSystem& slam, const ecar::Sim3& S,
+                         const ecar::PinholeCamera& camera, std::vector<DeviceRun>* runs) {
+  struct Observed {
+    Eigen::Vector3d p;                                               // ground-truth frame
+    std::vector<std::tuple<size_t, double, Eigen::Vector3d>> views;  // device, time, centre
+  };
+  std::vector<Observed> points;
+  {
+    auto lock = slam.map().readLock();
+    for (const auto& pid : slam.map().pointIds()) {
+      const ecar::MapPoint* p = slam.map().point(pid);
+      if (!p) continue;
+      Observed o;
+      o.p = S * p->p_w;
+      for (const auto& obs : p->observations) {
+        const ecar::KeyFrame* kf = slam.map().keyframe(obs.first);
+        if (!kf || kf->device.value < 1 || kf->device.value > runs->size()) continue;
+        const DeviceRun& r = (*runs)[kf->device.value - 1];
+        if (kf->frame_index >= r.dataset.size()) continue;
+        const auto& f = r.dataset.frame(kf->frame_index);
+        if (!f.T_w_c_gt) continue;
+        o.views.emplace_back(kf->device.value - 1, f.timestamp - r.dataset.frame(0).timestamp,
+                             f.T_w_c_gt->translation());
+      }
+      if (!o.views.empty()) points.push_back(std::move(o));
+    }
+  }
+  const ecar::Intrinsics K = ecar::intrinsicsOf(camera);
+  for (size_t d = 0; d < runs->size(); ++d) {
+    DeviceRun& r = (*runs)[d];
+    if (r.init_upload >= 0) continue;  // it started the map
+    for (size_t u = 0; u < r.uploads.size(); ++u) {
+      const auto& f = r.dataset.frame(r.uploads[u]);
+      if (!f.T_w_c_gt) continue;
+      const double t = f.timestamp - r.dataset.frame(0).timestamp;
+      const ecar::SE3 T_c_w = f.T_w_c_gt->inverse();
+      const Eigen::Vector3d c = f.T_w_c_gt->translation();
+      int shared = 0;
+      for (const auto& o : points) {
+        const Eigen::Vector3d pc = T_c_w * o.p;
+        if (pc.z() < 0.1) continue;
+        const double x = K.fx * pc.x() / pc.z() + K.cx, y = K.fy * pc.y() / pc.z() + K.cy;
+        if (x < 0 || y < 0 || x >= camera.width() || y >= camera.height()) continue;
+        const double dist = (o.p - c).norm();
+        for (const auto& [device, time, centre] : o.views) {
+          if (device == d || time > t) continue;
+          if (std::abs((o.p - centre).norm() / dist - 1.0) <= 0.2) {
+            ++shared;
+            break;
+          }
+        }
+      }
+      if (shared >= kOverlapPoints) {
+        r.first_overlap_upload = static_cast<int>(u);
+        break;
+      }
+    }
+  }
 }
 
 int run(const Args& args) {
@@ -259,6 +336,7 @@ int run(const Args& args) {
       std::cerr << "ecar_slam_offline: no ATE: " << e.what() << "\n";
     }
   }
+  if (have_ate) firstOverlapUploads(slam, S, camera, &runs);
   std::printf("map: %zu keyframes, %zu map points (%.1f s wall)\n", slam.map().numKeyFrames(),
               slam.map().numPoints(), wall_s);
   std::vector<double> all_errors;
@@ -275,12 +353,13 @@ int run(const Args& args) {
                                               : static_cast<int>(r.uploads.size());
     std::printf(
         "%s (%s): tracked %d/%zu uploads (%.1f%%; %.1f%% after initialisation), init upload %d"
-        " (frame %d), joined upload %d, relocalisations %d, ATE rmse %.4f m (n %zu)\n",
+        " (frame %d), joined upload %d (first overlap upload %d), relocalisations %d, ATE rmse"
+        " %.4f m (n %zu)\n",
         r.name.c_str(), r.dataset.dir().c_str(), r.tracked, r.uploads.size(),
         100.0 * r.tracked / std::max<size_t>(1, r.uploads.size()),
         100.0 * r.tracked / std::max(1, after_init), r.init_upload,
         r.init_upload >= 0 ? static_cast<int>(r.uploads[r.init_upload]) : -1, r.joined_upload,
-        r.relocalisations, st.rmse, st.n);
+        r.first_overlap_upload, r.relocalisations, st.rmse, st.n);
     summary["devices"].push_back(
         {{"dataset", r.dataset.dir()},
          {"uploads", r.uploads.size()},
@@ -288,6 +367,10 @@ int run(const Args& args) {
          {"init_upload", r.init_upload},
          {"init_frame", r.init_upload >= 0 ? static_cast<int>(r.uploads[r.init_upload]) : -1},
          {"joined_upload", r.joined_upload},
+         {"first_overlap_upload", r.first_overlap_upload},
+         {"join_delay_uploads", r.joined_upload >= 0 && r.first_overlap_upload >= 0
+                                    ? r.joined_upload - r.first_overlap_upload
+                                    : -1},
          {"relocalisations", r.relocalisations},
          {"ate", ecar::toJson(st)}});
     if (!args.out.empty()) {

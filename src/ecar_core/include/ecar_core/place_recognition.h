@@ -12,6 +12,7 @@
 // document frequency are left out of the query's vector.
 #pragma once
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <mutex>
@@ -127,6 +128,64 @@ class PlaceIndex {
   std::vector<NormTerms> norm_terms_;  ///< by document index
   std::vector<uint32_t> free_documents_;
   std::unordered_map<KeyFrameId, uint32_t> document_of_;
+};
+
+/// Nearest-descriptor search over keyframe keypoints (those with map points),
+/// for relocalisation and joining when whole-image scores fail: a view from
+/// another direction shares only a few points with any keyframe, too few for
+/// a bag-of-words score but enough for a pose once the individual matches are
+/// found. Locality-sensitive hashing as in PlaceIndex (`tables` words of
+/// `bits` fixed random bit positions, no training); every candidate is checked
+/// with its exact Hamming distance. A query costs about (query descriptors x
+/// tables x entries / 2^bits) distance computations.
+struct KeypointIndexConfig {
+  int tables = 12;       ///< hash functions per descriptor (1..64)
+  int bits = 14;         ///< bits per word (1..20)
+  uint32_t seed = 4321;  ///< bit positions are drawn from this seed
+};
+
+struct KeypointMatch {
+  int query_row = 0;  ///< row of the query descriptors
+  KeyFrameId keyframe;
+  int row = 0;  ///< keypoint (descriptor row) of the keyframe
+  int distance = 0;
+};
+
+/// Thread-safe: add/remove take an exclusive lock, query a shared lock.
+class KeypointIndex {
+ public:
+  /// Throws ecar::Error naming the config field if a value is out of range.
+  explicit KeypointIndex(const KeypointIndexConfig& config = KeypointIndexConfig());
+
+  /// Indexes rows `rows` of a keyframe's descriptors (N x 32, CV_8U). Re-adding
+  /// an id replaces it. Throws ecar::Error for an invalid id, another
+  /// descriptor type or a row out of range.
+  void add(KeyFrameId id, const cv::Mat& descriptors, const std::vector<int>& rows);
+  void remove(KeyFrameId id);
+  size_t size() const;  ///< indexed keyframes
+  size_t entries() const;
+
+  /// For each query row, up to `per_row` indexed keypoints within
+  /// `max_distance` bits, nearest first (ties by keyframe id, row). Rows are
+  /// in query order.
+  std::vector<KeypointMatch> query(const cv::Mat& descriptors, int max_distance, int per_row) const;
+
+ private:
+  struct Entry {
+    KeyFrameId keyframe;  ///< invalid for a free entry
+    int row = 0;
+    std::array<uint8_t, 32> descriptor{};
+  };
+  void wordsOf(const uint8_t* descriptor, uint32_t* words) const;
+  void removeLocked(KeyFrameId id);
+
+  const KeypointIndexConfig config_;
+  std::vector<uint8_t> bit_bytes_, bit_masks_;  ///< [table * bits + bit]
+  mutable std::shared_mutex mutex_;
+  std::vector<Entry> entries_;
+  std::vector<uint32_t> free_entries_;
+  std::vector<std::vector<uint32_t>> buckets_;  ///< [table << bits | word] -> entries
+  std::unordered_map<KeyFrameId, std::vector<uint32_t>> entries_of_;
 };
 
 }  // namespace ecar

@@ -42,6 +42,7 @@ struct SlamConfig {
   PoseOptimizerConfig pose;
   BaConfig ba;
   PlaceIndexConfig place;
+  KeypointIndexConfig keypoints;
   int init_min_matches = 100;  ///< correspondences needed to try two-view
   double init_window = 100.0;  ///< px search window between the two views
   int init_candidates = 10;    ///< recent views kept as first-view candidates
@@ -59,6 +60,15 @@ struct SlamConfig {
   int covisible_triangulation = 10;  ///< neighbours searched for new points
   double relocalisation_ratio = 0.75;
   int relocalisation_candidates = 5;
+  /// Relocalisation / joining by keypoint matches (when the whole-image
+  /// candidates fail, e.g. a view from the opposite direction): ratio test
+  /// between the two nearest distinct map points, and the neighbours of a
+  /// candidate keyframe whose points are matched with it.
+  double keypoint_ratio = 0.8;
+  int keypoint_group = 15;
+  /// A relocalised pose must agree with the upload's gravity within this
+  /// (degrees) where the map is gravity-aligned.
+  double gravity_tolerance_deg = 5.0;
   bool synchronous_mapping = true;  ///< map each keyframe inside track()
 };
 
@@ -87,8 +97,10 @@ class LocalMapper;
 
 class Tracker {
  public:
+  /// `keypoints` may be null (no relocalisation by keypoint matches).
   Tracker(DeviceId device, Map* map, PlaceIndex* index, LocalMapper* mapper,
-          const PinholeCamera& camera, const SlamConfig& config);
+          const PinholeCamera& camera, const SlamConfig& config,
+          KeypointIndex* keypoints = nullptr);
   /// Aligns one grey image. Bad images (empty, wrong size, blank) give a
   /// NOT_INITIALISED/LOST result with a message; nothing throws.
   TrackResult track(const cv::Mat& image, double timestamp, uint32_t frame_index,
@@ -103,6 +115,13 @@ class Tracker {
   bool trackWithMotionModel();
   bool trackReferenceKeyFrame();
   bool relocalise();
+  bool relocaliseByPlace();
+  bool relocaliseByKeypoints();
+  /// Projection search of candidate points (no viewing-angle check: the map
+  /// may have seen them from the other side), pose refinement and the checks
+  /// of a relocalised pose.
+  bool verifyRelocalisation(std::vector<PointSample> samples);
+  bool gravityConsistent() const;
   int trackLocalMap();
   bool needKeyFrame() const;
   KeyFrameId createKeyFrame();
@@ -113,6 +132,7 @@ class Tracker {
   DeviceId device_;
   Map* map_;
   PlaceIndex* index_;
+  KeypointIndex* keypoints_;
   LocalMapper* mapper_;
   PinholeCamera camera_;
   Intrinsics K_;
@@ -136,7 +156,9 @@ class Tracker {
 
 class LocalMapper {
  public:
-  LocalMapper(Map* map, PlaceIndex* index, const PinholeCamera& camera, const SlamConfig& config);
+  /// `keypoints` may be null.
+  LocalMapper(Map* map, PlaceIndex* index, const PinholeCamera& camera, const SlamConfig& config,
+              KeypointIndex* keypoints = nullptr);
   ~LocalMapper();
   void insert(KeyFrameId kf);
   /// Maps every queued keyframe now (synchronous mode).
@@ -159,6 +181,7 @@ class LocalMapper {
 
   Map* map_;
   PlaceIndex* index_;
+  KeypointIndex* keypoints_;
   PinholeCamera camera_;
   Intrinsics K_;
   SlamConfig config_;
@@ -191,6 +214,7 @@ class SlamSystem {
   SlamConfig config_;
   Map map_;
   PlaceIndex index_;
+  KeypointIndex keypoint_index_;
   LocalMapper mapper_;
   std::mutex trackers_mutex_;
   std::unordered_map<DeviceId, std::unique_ptr<Tracker>> trackers_;

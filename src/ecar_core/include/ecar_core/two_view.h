@@ -76,4 +76,16 @@ PnpResult solvePnpRansac(const std::vector<Eigen::Vector3d>& points_w,
                          const std::vector<Eigen::Vector2d>& pixels, const Eigen::Matrix3d& K,
                          const PnpConfig& config);
 
+/// Camera pose from 3D-2D correspondences when the direction of the world's
+/// +z axis in the camera frame (`up_c`, from gravity) is known: only the yaw
+/// about z and the translation are free, so a RANSAC sample needs 2
+/// correspondences (a linear system and a quadratic for the unit yaw vector)
+/// and much higher outlier ratios are tolerated than with P3P / EPnP. The
+/// returned pose keeps the camera's up axis exactly at `up_c` (least squares
+/// over the inliers). Fails with fewer than config.min_inliers inliers.
+PnpResult solvePnpGravityRansac(const std::vector<Eigen::Vector3d>& points_w,
+                                const std::vector<Eigen::Vector2d>& pixels,
+                                const Eigen::Matrix3d& K, const Eigen::Vector3d& up_c,
+                                const PnpConfig& config, uint32_t seed = 1);
+
 }  // namespace ecar
