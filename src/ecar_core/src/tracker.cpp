@@ -252,6 +252,7 @@ bool Tracker::trackWithMotionModel() {
       }
     }
     samples = samplesOf(ids);
+    const Eigen::Vector3d center = T_c_w_.inverse().translation();
     // Octave hints and descriptors from the last frame (samples keep the order
     // of ids): its view is the closest to the current one, also for points
     // another device mapped from the other side.
@@ -259,8 +260,16 @@ bool Tracker::trackWithMotionModel() {
     for (size_t i = 0; i < ids.size() && k < samples.size(); ++i) {
       if (samples[k].id != ids[i]) continue;
       samples[k].octave_hint = octaves[i];
-      const uint8_t* d = last_.descriptors.ptr<uint8_t>(rows[i]);
-      std::copy(d, d + 32, samples[k].descriptor.begin());
+      // Only for points seen from well off their mean viewing direction (a
+      // point mapped from the other side): elsewhere the representative
+      // descriptor anchors the association, and the last frame's would let
+      // it creep across scales from frame to frame (3% scale drift over the
+      // corridor).
+      const Eigen::Vector3d ray = (samples[k].p_w - center).normalized();
+      if (ray.dot(samples[k].normal) < 0.5) {
+        const uint8_t* d = last_.descriptors.ptr<uint8_t>(rows[i]);
+        std::copy(d, d + 32, samples[k].descriptor.begin());
+      }
       ++k;
     }
   }
