@@ -51,15 +51,18 @@ fi
 /usr/bin/python3 - "$OUT" <<'PY'
 import json, pathlib, sys
 out = pathlib.Path(sys.argv[1])
-rows = ["| run | tracked | init upload | ATE rmse (m) | keyframes | points | ORB med/p95 (ms) | tracking med/p95 (ms) | local BA med/p95 (ms) |",
-        "|---|---|---|---|---|---|---|---|---|"]
+rows = ["| run | tracked | tracked after init/join | init (or join) upload | first overlap upload | ATE rmse (m) | keyframes | points | ORB med/p95 (ms) | tracking med/p95 (ms) | local BA med/p95 (ms) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|"]
 for f in sorted(out.glob("*.json")):
     s = json.load(open(f))
     t = s["times_ms"]
     tracked = ", ".join(f"{d['tracked']}/{d['uploads']}" for d in s["devices"])
-    init = ", ".join(str(d["init_upload"] if d["init_upload"] >= 0 else d["joined_upload"]) for d in s["devices"])
+    start = [d["init_upload"] if d["init_upload"] >= 0 else d["joined_upload"] for d in s["devices"]]
+    init = ", ".join(map(str, start))
+    after = ", ".join(f"{100.0 * d['tracked'] / max(1, d['uploads'] - max(0, b)):.1f}%" for d, b in zip(s["devices"], start))
+    overlap = ", ".join(str(d.get("first_overlap_upload", -1)) for d in s["devices"])
     ate = s["ate"]["rmse"]
-    rows.append(f"| {f.stem} | {tracked} | {init} | {ate if ate is None else round(ate, 4)} | {s['keyframes']} | {s['map_points']} | "
+    rows.append(f"| {f.stem} | {tracked} | {after} | {init} | {overlap} | {ate if ate is None else round(ate, 4)} | {s['keyframes']} | {s['map_points']} | "
                 f"{t['orb_median']:.1f}/{t['orb_p95']:.1f} | {t['tracking_median']:.1f}/{t['tracking_p95']:.1f} | {t['local_ba_median']:.1f}/{t['local_ba_p95']:.1f} |")
 (out / "README.md").write_text("# SLAM benchmarks\n\n" + "\n".join(rows) + "\n")
 print("\n".join(rows))
