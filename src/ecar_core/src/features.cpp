@@ -103,8 +103,9 @@ uint8_t fastScorePixel(const uint8_t* center, const std::ptrdiff_t* offsets) {
 }
 
 // Hot loops are compiled twice, for AVX2 and for the baseline CPU, and the
-// CPU picks one when the program loads.
-#if defined(__GNUC__) && defined(__x86_64__)
+// CPU picks one when the program loads. Not under ThreadSanitizer, whose
+// instrumentation crashes the load-time resolvers (it is not yet set up then).
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__) && !defined(__SANITIZE_THREAD__)
 #define ECAR_CLONE_AVX2 __attribute__((target_clones("avx2", "default")))
 #else
 #define ECAR_CLONE_AVX2
@@ -621,7 +622,8 @@ void OrbExtractor::computeAt(const cv::Mat& image, const std::vector<cv::KeyPoin
   }
 }
 
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__POPCNT__)
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__POPCNT__) && \
+    !defined(__SANITIZE_THREAD__)
 // The matcher calls this in its inner loops: use the popcnt instruction where
 // the CPU has it (chosen once at load time).
 __attribute__((target_clones("popcnt", "default")))
