@@ -640,6 +640,7 @@ bool Tracker::initialise(TrackResult* result) {
   };
   std::vector<Attempt> attempts;
   int best_count = 0;
+  bool still = false;
   for (size_t c = 0; c < init_candidates_.size(); ++c) {
     Attempt a{c, 0.0, {}};
     const Frame& first = init_candidates_[c];
@@ -654,7 +655,19 @@ bool Tracker::initialise(TrackResult* result) {
     }
     std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
     a.displacement = d[d.size() / 2];
+    // Parallax needs keypoints to move relative to each other; where even the
+    // 90th percentile barely moved, the views are the same (a device at rest).
+    std::nth_element(d.begin(), d.begin() + d.size() * 9 / 10, d.end());
+    if (d[d.size() * 9 / 10] < config_.init_min_displacement_px) {
+      still = true;
+      continue;
+    }
     attempts.push_back(std::move(a));
+  }
+  if (attempts.empty() && still) {
+    result->message = "initialising: the camera has not moved";
+    remember();
+    return false;
   }
   if (attempts.empty()) {
     result->message = "initialising: " + std::to_string(best_count) + " matches";

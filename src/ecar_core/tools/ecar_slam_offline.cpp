@@ -362,15 +362,22 @@ int run(const Args& args) {
     // Uploads from the one that initialised the map, or joined it, on.
     const int start = r.init_upload >= 0 ? r.init_upload : std::max(0, r.joined_upload);
     const int after_init = static_cast<int>(r.uploads.size()) - start;
+    // How the device entered the map: it initialised it, or joined it.
+    char entry[160];
+    if (r.init_upload >= 0) {
+      std::snprintf(entry, sizeof(entry), "initialised at upload %d (frame %d)", r.init_upload,
+                    static_cast<int>(r.uploads[r.init_upload]));
+    } else {
+      std::snprintf(entry, sizeof(entry),
+                    "joined at upload %d (first overlap upload %d, within %.1f m)", r.joined_upload,
+                    r.first_overlap_upload, r.overlap_range_m);
+    }
     std::printf(
-        "%s (%s): tracked %d/%zu uploads (%.1f%%; %.1f%% after initialisation or joining), init"
-        " upload %d (frame %d), joined upload %d (first overlap upload %d within %.1f m),"
+        "%s (%s): tracked %d/%zu uploads (%.1f%%; %.1f%% from initialisation or joining on), %s,"
         " relocalisations %d, ATE rmse %.4f m (n %zu)\n",
         r.name.c_str(), r.dataset.dir().c_str(), r.tracked, r.uploads.size(),
         100.0 * r.tracked / std::max<size_t>(1, r.uploads.size()),
-        100.0 * r.tracked / std::max(1, after_init), r.init_upload,
-        r.init_upload >= 0 ? static_cast<int>(r.uploads[r.init_upload]) : -1, r.joined_upload,
-        r.first_overlap_upload, r.overlap_range_m, r.relocalisations, st.rmse, st.n);
+        100.0 * r.tracked / std::max(1, after_init), entry, r.relocalisations, st.rmse, st.n);
     summary["devices"].push_back(
         {{"dataset", r.dataset.dir()},
          {"uploads", r.uploads.size()},

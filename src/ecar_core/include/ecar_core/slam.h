@@ -47,7 +47,9 @@ struct SlamConfig {
   double init_window = 100.0;  ///< px search window between the two views
   int init_candidates = 10;    ///< recent views kept as first-view candidates
   int init_attempts = 5;       ///< two-view reconstructions tried per image
-  int min_inliers = 30;        ///< tracking OK needs this many inliers
+  /// A candidate view is skipped when 90% of the keypoints moved less (px).
+  double init_min_displacement_px = 3.0;
+  int min_inliers = 30;  ///< tracking OK needs this many inliers
   /// Below this fraction of the last image's inliers, the motion-model result
   /// is checked against tracking from the reference keyframe.
   double weak_tracking_ratio = 0.5;
