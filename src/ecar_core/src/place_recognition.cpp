@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <random>
 #include <string>
@@ -514,19 +515,27 @@ std::vector<KeypointMatch> KeypointIndex::query(const cv::Mat& descriptors, int 
   std::vector<KeypointMatch> out;
   if (descriptors.empty() || per_row <= 0) return out;
   std::vector<uint32_t> words(config_.tables);
-  // Per entry: the query row that last looked at it (no entry is checked twice).
-  thread_local std::vector<int> seen;
+  // Per entry: the stamp of the query row that last looked at it, so no entry
+  // is checked twice for a row. Stamps grow across queries (no clearing of
+  // millions of entries per query); the array restarts when they wrap.
+  thread_local std::vector<uint32_t> seen;
+  thread_local uint32_t stamp = 0;
   std::vector<std::pair<int, uint32_t>> hits;  // (distance, entry)
   std::shared_lock<std::shared_mutex> lock(mutex_);
-  seen.assign(entries_.size(), -1);
+  if (seen.size() < entries_.size()) seen.resize(entries_.size(), 0);
+  if (stamp > std::numeric_limits<uint32_t>::max() - static_cast<uint32_t>(descriptors.rows) - 1) {
+    std::fill(seen.begin(), seen.end(), 0);
+    stamp = 0;
+  }
   for (int r = 0; r < descriptors.rows; ++r) {
     const uint8_t* d = descriptors.ptr<uint8_t>(r);
     wordsOf(d, words.data());
     hits.clear();
+    const uint32_t row_stamp = ++stamp;
     for (uint32_t w : words) {
       for (uint32_t e : buckets_[w]) {
-        if (seen[e] == r) continue;
-        seen[e] = r;
+        if (seen[e] == row_stamp) continue;
+        seen[e] = row_stamp;
         const int dist = descriptorDistance(d, entries_[e].descriptor.data());
         if (dist <= max_distance) hits.emplace_back(dist, e);
       }

@@ -7,7 +7,11 @@
 // 0-15 bit flips. A query re-observes a random keyframe: 60% of its landmarks
 // with 10-25 bit flips plus 40% unrelated descriptors. Prints the index memory,
 // the add time per keyframe, the median / p95 query time and how often the
-// best candidate is within 2 keyframes of the true one.
+// best candidate is within 2 keyframes of the true one. Then the same for the
+// KeypointIndex (relocalisation / joining by keypoint matches) with the first
+// --keypoint-rows descriptors of each keyframe indexed (those with map
+// points): query time and the share of re-observed landmarks whose true
+// keypoint is among the hits.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -22,6 +26,7 @@
 #include <opencv2/core.hpp>
 
 #include "ecar_core/error.h"
+#include "ecar_core/matcher.h"
 #include "ecar_core/place_recognition.h"
 #include "ecar_core/trajectory_eval.h"
 
@@ -30,13 +35,15 @@ namespace {
 using ecar::percentile;
 
 struct Args {
-  int keyframes = 5000, features = 1000, queries = 200;
+  int keyframes = 5000, features = 1000, queries = 200, keypoint_rows = 500;
   ecar::PlaceIndexConfig index;
+  ecar::KeypointIndexConfig keypoints;
 };
 
 void usage() {
   std::cerr << "usage: ecar_bench_place [--keyframes N] [--features M] [--queries Q] "
-               "[--tables T] [--bits B] [--seed S]\n";
+               "[--tables T] [--bits B] [--seed S] [--keypoint-rows R] [--keypoint-tables T] "
+               "[--keypoint-bits B]\n";
 }
 
 double msSince(std::chrono::steady_clock::time_point t0) {
@@ -89,6 +96,12 @@ int main(int argc, char** argv) {
       a.index.bits = next();
     else if (k == "--seed")
       a.index.seed = static_cast<uint32_t>(next());
+    else if (k == "--keypoint-rows")
+      a.keypoint_rows = std::max(1, next());
+    else if (k == "--keypoint-tables")
+      a.keypoints.tables = next();
+    else if (k == "--keypoint-bits")
+      a.keypoints.bits = next();
     else {
       usage();
       return 2;
@@ -102,6 +115,9 @@ int main(int argc, char** argv) {
     for (int l = 0; l < landmarks_total; ++l) randomDescriptor(&rng, landmarks.ptr<uint8_t>(l));
 
     ecar::PlaceIndex index(a.index);
+    ecar::KeypointIndex keypoint_index(a.keypoints);
+    std::vector<int> indexed_rows(static_cast<size_t>(std::min(a.keypoint_rows, a.features)));
+    std::iota(indexed_rows.begin(), indexed_rows.end(), 0);
     std::vector<double> add_ms, add_cpu_ms;
     cv::Mat d(a.features, 32, CV_8U);
     for (int k = 0; k < a.keyframes; ++k) {
@@ -114,10 +130,12 @@ int main(int argc, char** argv) {
       index.add(ecar::KeyFrameId(k + 1), d);
       add_cpu_ms.push_back(threadCpuMs() - cpu0);
       add_ms.push_back(msSince(t0));
+      keypoint_index.add(ecar::KeyFrameId(k + 1), d, indexed_rows);
     }
     const double memory_mb = static_cast<double>(index.memoryBytes()) / (1024.0 * 1024.0);
 
-    std::vector<double> query_ms, query_cpu_ms;
+    std::vector<double> query_ms, query_cpu_ms, keypoint_cpu_ms;
+    int keypoint_indexed = 0, keypoint_found = 0;
     int near = 0;
     std::vector<int> order(a.features);
     for (int q = 0; q < a.queries; ++q) {
@@ -141,6 +159,32 @@ int main(int argc, char** argv) {
       if (!candidates.empty() &&
           std::abs(static_cast<int>(candidates[0].keyframe.value) - 1 - k) <= 2)
         ++near;
+
+      // Keypoint index: a hit is right when it is the landmark's own keypoint
+      // in one of the keyframes that indexed it.
+      const double kcpu0 = threadCpuMs();
+      const auto hits = keypoint_index.query(d, ecar::kDescriptorThresholdLow, 4);
+      keypoint_cpu_ms.push_back(threadCpuMs() - kcpu0);
+      std::vector<bool> found(static_cast<size_t>(seen), false);
+      for (const auto& h : hits) {
+        if (h.query_row >= seen) continue;
+        const int landmark = k * step + order[h.query_row];
+        if (landmark - static_cast<int>(h.keyframe.value - 1) * step == h.row) {
+          found[h.query_row] = true;
+        }
+      }
+      for (int f = 0; f < seen; ++f) {
+        const int landmark = k * step + order[f];
+        // Indexed somewhere: by keyframe k' at row landmark - k' * step < rows.
+        bool indexed = false;
+        for (int kk = std::max(0, landmark / step - 5); kk <= landmark / step && !indexed; ++kk) {
+          const int row = landmark - kk * step;
+          indexed = kk < a.keyframes && row >= 0 && row < static_cast<int>(indexed_rows.size());
+        }
+        if (!indexed) continue;
+        ++keypoint_indexed;
+        keypoint_found += found[f] ? 1 : 0;
+      }
     }
 
     auto mean = [](const std::vector<double>& v) {
@@ -163,6 +207,13 @@ int main(int argc, char** argv) {
         a.features, percentile(query_ms, 0.5), percentile(query_ms, 0.95),
         percentile(query_ms, 1.0), percentile(query_cpu_ms, 0.5), percentile(query_cpu_ms, 0.95));
     std::printf("best candidate within 2 keyframes: %d of %d queries\n", near, a.queries);
+    std::printf(
+        "keypoint index: %zu entries (%d tables x %d bits); query cpu ms (%d descriptors): "
+        "median %.3f  p95 %.3f; true keypoint among the hits for %.1f%% of re-observed "
+        "landmarks\n",
+        keypoint_index.entries(), a.keypoints.tables, a.keypoints.bits, a.features,
+        percentile(keypoint_cpu_ms, 0.5), percentile(keypoint_cpu_ms, 0.95),
+        100.0 * keypoint_found / std::max(1, keypoint_indexed));
   } catch (const std::exception& e) {
     std::cerr << "ecar_bench_place: " << e.what() << "\n";
     return 1;

@@ -140,7 +140,7 @@ class PlaceIndex {
 /// tables x entries / 2^bits) distance computations.
 struct KeypointIndexConfig {
   int tables = 12;       ///< hash functions per descriptor (1..64)
-  int bits = 14;         ///< bits per word (1..20)
+  int bits = 16;         ///< bits per word (1..20)
   uint32_t seed = 4321;  ///< bit positions are drawn from this seed
 };
 
