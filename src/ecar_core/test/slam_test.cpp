@@ -281,6 +281,21 @@ TEST(SlamTest, DeviceWalkingTheOtherWayJoins) {
   EXPECT_LT(ate(est, gt, true), 0.05);
 }
 
+// A device at rest (the EuRoC clip's vehicle before take-off): no two-view
+// attempt is wasted, and the reason says so.
+TEST(SlamTest, DeviceAtRestDoesNotInitialise) {
+  const Scene scene = loadScene(kScenes + "/room.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "half_circle", 4, 1);
+  SlamSystem slam(renderer.camera());
+  TrackResult r;
+  for (int i = 0; i < 5; ++i) r = slam.track(DeviceId(1), uploads[0].image, 0.1 * i, 4 * i);
+  EXPECT_EQ(r.state, TrackingState::kNotInitialised);
+  EXPECT_NE(r.message.find("has not moved"), std::string::npos) << r.message;
+  auto lock = slam.map().readLock();
+  EXPECT_FALSE(slam.map().initialized());
+}
+
 TEST(SlamTest, BadImagesAreReportedAndSkipped) {
   const Scene scene = loadScene(kScenes + "/room.yaml");
   const Renderer renderer(scene);
