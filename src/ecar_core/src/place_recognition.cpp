@@ -16,6 +16,25 @@ namespace ecar {
 namespace {
 
 constexpr int kDescriptorBytes = 32;
+
+// Per table, `bits` distinct descriptor bit positions (as byte index and
+// mask): a partial Fisher-Yates shuffle of 0..255 (rng() % n rather than a
+// distribution, so the same on every platform).
+void drawBitPositions(uint32_t seed, int tables, int bits, std::vector<uint8_t>* bytes,
+                      std::vector<uint8_t>* masks) {
+  std::mt19937 rng(seed);
+  for (int t = 0; t < tables; ++t) {
+    std::array<uint16_t, 8 * kDescriptorBytes> pool;
+    std::iota(pool.begin(), pool.end(), 0);
+    for (int b = 0; b < bits; ++b) {
+      const size_t j = b + rng() % (pool.size() - b);
+      std::swap(pool[b], pool[j]);
+      bytes->push_back(static_cast<uint8_t>(pool[b] >> 3));
+      masks->push_back(static_cast<uint8_t>(1u << (pool[b] & 7)));
+    }
+  }
+}
+
 // A posting packs the document index in 24 bits and the count in 8.
 constexpr uint32_t kMaxDocuments = 1u << 24;
 constexpr uint32_t kMaxCount = 255;
@@ -174,19 +193,7 @@ PlaceIndex::PlaceIndex(const PlaceIndexConfig& config) : config_(config) {
     throw Error("PlaceIndexConfig.max_document_frequency must be in (0, 1], got " +
                 std::to_string(config_.max_document_frequency));
   }
-  // Per table, `bits` distinct positions: a partial Fisher-Yates shuffle of
-  // 0..255 (rng() % n rather than a distribution: the same on every platform).
-  std::mt19937 rng(config_.seed);
-  for (int t = 0; t < config_.tables; ++t) {
-    std::array<uint16_t, 8 * kDescriptorBytes> pool;
-    std::iota(pool.begin(), pool.end(), 0);
-    for (int b = 0; b < config_.bits; ++b) {
-      const size_t j = b + rng() % (pool.size() - b);
-      std::swap(pool[b], pool[j]);
-      bit_bytes_.push_back(static_cast<uint8_t>(pool[b] >> 3));
-      bit_masks_.push_back(static_cast<uint8_t>(1u << (pool[b] & 7)));
-    }
-  }
+  drawBitPositions(config_.seed, config_.tables, config_.bits, &bit_bytes_, &bit_masks_);
 }
 
 void PlaceIndex::hashDescriptors(const cv::Mat& descriptors, std::vector<uint64_t>* keys) const {
@@ -416,17 +423,7 @@ KeypointIndex::KeypointIndex(const KeypointIndexConfig& config) : config_(config
   if (config_.bits < 1 || config_.bits > 20) {
     throw Error("KeypointIndexConfig.bits must be in [1, 20], got " + std::to_string(config_.bits));
   }
-  std::mt19937 rng(config_.seed);
-  for (int t = 0; t < config_.tables; ++t) {
-    std::array<uint16_t, 8 * kDescriptorBytes> pool;
-    std::iota(pool.begin(), pool.end(), 0);
-    for (int b = 0; b < config_.bits; ++b) {
-      const size_t j = b + rng() % (pool.size() - b);
-      std::swap(pool[b], pool[j]);
-      bit_bytes_.push_back(static_cast<uint8_t>(pool[b] >> 3));
-      bit_masks_.push_back(static_cast<uint8_t>(1u << (pool[b] & 7)));
-    }
-  }
+  drawBitPositions(config_.seed, config_.tables, config_.bits, &bit_bytes_, &bit_masks_);
   buckets_.resize(static_cast<size_t>(config_.tables) << config_.bits);
 }
 
