@@ -496,6 +496,30 @@ bool Tracker::relocaliseByKeypoints() {
   std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) {
     return a.first != b.first ? a.first > b.first : a.second < b.second;
   });
+  // With gravity, all matches at once first: the correct ones of a view
+  // from another direction are spread over several keyframe groups, too few
+  // in any one of them.
+  if (!ranked.empty() && hasGravity(current_)) {
+    bool aligned = false;
+    {
+      auto lock = map_->readLock();
+      const KeyFrame* kf = map_->keyframe(ranked.front().second);
+      aligned = kf && gravityAlignedAt(*kf, config_.gravity_tolerance_deg);
+    }
+    if (aligned) {
+      std::vector<Eigen::Vector3d> pw;
+      std::vector<Eigen::Vector2d> px;
+      std::vector<MapPointId> ids;
+      std::vector<int> rows;
+      for (const auto& pm : putative) {
+        pw.push_back(pm.p_w);
+        px.push_back(current_.undistorted[pm.row]);
+        ids.push_back(pm.id);
+        rows.push_back(pm.row);
+      }
+      if (relocaliseByGravity(pw, px, ids, rows, ranked.front().second)) return true;
+    }
+  }
   Eigen::Matrix3d K;
   K << K_.fx, 0, K_.cx, 0, K_.fy, K_.cy, 0, 0, 1;
   std::unordered_set<KeyFrameId> tried;
@@ -557,6 +581,45 @@ bool Tracker::relocaliseByKeypoints() {
     if (verifyRelocalisation(std::move(samples))) return true;
   }
   return false;
+}
+
+bool Tracker::relocaliseByGravity(const std::vector<Eigen::Vector3d>& points_w,
+                                  const std::vector<Eigen::Vector2d>& pixels,
+                                  const std::vector<MapPointId>& ids, const std::vector<int>& rows,
+                                  KeyFrameId reference) {
+  Eigen::Matrix3d K;
+  K << K_.fx, 0, K_.cx, 0, K_.fy, K_.cy, 0, 0, 1;
+  PnpConfig pnp_config = config_.pnp;
+  pnp_config.ransac_iterations = std::max(pnp_config.ransac_iterations, 2000);
+  pnp_config.min_inliers = config_.keypoint_gravity_min_inliers;
+  const PnpResult pnp = solvePnpGravityRansac(points_w, pixels, K, current_.gravity_c->normalized(),
+                                              pnp_config, current_.frame_index + 1);
+  if (!pnp.success) return false;
+  matches_.assign(current_.size(), MapPointId());
+  std::vector<PointSample> samples;
+  {
+    auto lock = map_->readLock();
+    std::unordered_set<KeyFrameId> observers;
+    for (int k : pnp.inliers) {
+      matches_[rows[k]] = ids[k];
+      if (const MapPoint* p = map_->point(ids[k])) {
+        for (const auto& obs : p->observations) observers.insert(obs.first);
+      }
+    }
+    std::unordered_set<MapPointId> seen;
+    std::vector<MapPointId> sample_ids;
+    for (const auto& o : observers) {
+      const KeyFrame* kf = map_->keyframe(o);
+      if (!kf) continue;
+      for (const auto& id : kf->points) {
+        if (id.valid() && seen.insert(id).second) sample_ids.push_back(id);
+      }
+    }
+    samples = samplesOf(sample_ids);
+  }
+  T_c_w_ = pnp.T_c_w;
+  reference_kf_ = reference;
+  return verifyRelocalisation(std::move(samples));
 }
 
 bool Tracker::needKeyFrame() const {

@@ -68,6 +68,11 @@ struct SlamConfig {
   /// candidate keyframe whose points are matched with it.
   double keypoint_ratio = 0.8;
   int keypoint_group = 15;
+  /// With gravity in a gravity-aligned map: inliers a 2-point (yaw and
+  /// translation) RANSAC over all keypoint matches at once needs before the
+  /// pose is verified by projection (a view from the opposite direction has
+  /// only about 10 correct matches among 60-90 when it first joins).
+  int keypoint_gravity_min_inliers = 10;
   /// A relocalised pose must agree with the upload's gravity within this
   /// (degrees) where the map is gravity-aligned.
   double gravity_tolerance_deg = 5.0;
@@ -119,6 +124,13 @@ class Tracker {
   bool relocalise();
   bool relocaliseByPlace();
   bool relocaliseByKeypoints();
+  /// One gravity RANSAC over all keypoint matches (points, pixels, ids and
+  /// keypoint rows alike indexed); verified against the points of the
+  /// keyframes that observe its inliers.
+  bool relocaliseByGravity(const std::vector<Eigen::Vector3d>& points_w,
+                           const std::vector<Eigen::Vector2d>& pixels,
+                           const std::vector<MapPointId>& ids, const std::vector<int>& rows,
+                           KeyFrameId reference);
   /// Projection search of candidate points (no viewing-angle check: the map
   /// may have seen them from the other side), pose refinement and the checks
   /// of a relocalised pose.
