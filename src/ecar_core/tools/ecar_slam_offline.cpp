@@ -367,6 +367,11 @@ int run(const Args& args) {
     if (r.init_upload >= 0) {
       std::snprintf(entry, sizeof(entry), "initialised at upload %d (frame %d)", r.init_upload,
                     static_cast<int>(r.uploads[r.init_upload]));
+    } else if (r.joined_upload < 0 && r.overlap_range_m > 0.0) {
+      std::snprintf(entry, sizeof(entry), "never joined (first overlap upload %d, within %.1f m)",
+                    r.first_overlap_upload, r.overlap_range_m);
+    } else if (r.joined_upload < 0) {
+      std::snprintf(entry, sizeof(entry), "never initialised a map or joined one");
     } else {
       std::snprintf(entry, sizeof(entry),
                     "joined at upload %d (first overlap upload %d, within %.1f m)", r.joined_upload,
