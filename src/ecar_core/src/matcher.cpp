@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <unordered_set>
 
 #include "ecar_core/features.h"
 
@@ -97,14 +96,16 @@ int searchByProjection(const Frame& frame, const SE3& T_c_w, const Intrinsics& K
   std::vector<int> candidates;
   std::vector<int> best_dist(frame.size(), std::numeric_limits<int>::max());
   std::vector<int> owner(frame.size(), -1);
-  // A point already matched in this frame keeps its keypoint.
-  std::unordered_set<MapPointId> taken;
+  // A point already matched in this frame keeps its keypoint (a sorted list:
+  // no hash nodes allocated per frame).
+  std::vector<MapPointId> taken;
   for (const auto& id : *matches) {
-    if (id.valid()) taken.insert(id);
+    if (id.valid()) taken.push_back(id);
   }
+  std::sort(taken.begin(), taken.end());
   for (size_t pi = 0; pi < points.size(); ++pi) {
     const PointSample& p = points[pi];
-    if (!taken.empty() && taken.count(p.id)) continue;
+    if (!taken.empty() && std::binary_search(taken.begin(), taken.end(), p.id)) continue;
     const Projection pr = project(p, T_c_w, center, K, scale, width, height);
     if (!pr.ok) continue;
     const int min_level = p.octave_hint >= 0 ? std::max(0, p.octave_hint - 1) : pr.level - 1;

@@ -1,5 +1,6 @@
 // Tracking of one device's images against the shared map.
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <unordered_set>
@@ -46,6 +47,21 @@ SE3 initialWorldFrame(const std::optional<Eigen::Vector3d>& gravity_c) {
   return T_c_w;
 }
 
+// Ids of the map points the keyframes observe, each once, in keyframe order
+// (the map's read lock held).
+template <typename KeyFrames>
+std::vector<MapPointId> pointsSeenBy(const Map& map, const KeyFrames& keyframes) {
+  std::unordered_set<MapPointId> seen;
+  std::vector<MapPointId> ids;
+  for (const KeyFrameId& k : keyframes) {
+    const KeyFrame* kf = map.keyframe(k);
+    if (!kf) continue;
+    for (const auto& id : kf->points) {
+      if (id.valid() && seen.insert(id).second) ids.push_back(id);
+    }
+  }
+  return ids;
+}
 }  // namespace
 
 const char* toString(TrackingState state) {
@@ -406,13 +422,8 @@ bool Tracker::relocaliseByPlace() {
     std::vector<PointSample> samples;
     {
       auto lock = map_->readLock();
-      const KeyFrame* kf = map_->keyframe(c.keyframe);
-      if (!kf) continue;
-      std::vector<MapPointId> ids;
-      for (const auto& id : kf->points) {
-        if (id.valid()) ids.push_back(id);
-      }
-      samples = samplesOf(ids);
+      if (!map_->keyframe(c.keyframe)) continue;
+      samples = samplesOf(pointsSeenBy(*map_, std::array<KeyFrameId, 1>{c.keyframe}));
     }
     std::vector<MapPointId> m(current_.size());
     std::vector<int> which;
@@ -427,8 +438,7 @@ bool Tracker::relocaliseByPlace() {
       px.push_back(current_.undistorted[i]);
       kp_index.push_back(static_cast<int>(i));
     }
-    Eigen::Matrix3d K;
-    K << K_.fx, 0, K_.cx, 0, K_.fy, K_.cy, 0, 0, 1;
+    const Eigen::Matrix3d K = camera_.K();
     const PnpResult pnp = solvePnpRansac(pw, px, K, config_.pnp);
     if (!pnp.success) continue;
     matches_.assign(current_.size(), MapPointId());
@@ -520,8 +530,7 @@ bool Tracker::relocaliseByKeypoints() {
       if (relocaliseByGravity(pw, px, ids, rows, ranked.front().second)) return true;
     }
   }
-  Eigen::Matrix3d K;
-  K << K_.fx, 0, K_.cx, 0, K_.fy, K_.cy, 0, 0, 1;
+  const Eigen::Matrix3d K = camera_.K();
   std::unordered_set<KeyFrameId> tried;
   int attempts = 0;
   for (const auto& r : ranked) {
@@ -539,16 +548,7 @@ bool Tracker::relocaliseByKeypoints() {
       if (!kf) continue;
       aligned = gravityAlignedAt(*kf, config_.gravity_tolerance_deg);
       for (const auto& n : map_->bestCovisible(r.second, config_.keypoint_group)) group.insert(n);
-      std::unordered_set<MapPointId> seen;
-      std::vector<MapPointId> ids;
-      for (const auto& g : group) {
-        const KeyFrame* gk = map_->keyframe(g);
-        if (!gk) continue;
-        for (const auto& id : gk->points) {
-          if (id.valid() && seen.insert(id).second) ids.push_back(id);
-        }
-      }
-      samples = samplesOf(ids);
+      samples = samplesOf(pointsSeenBy(*map_, group));
     }
     tried.insert(group.begin(), group.end());
     std::vector<Eigen::Vector3d> pw;
@@ -587,8 +587,7 @@ bool Tracker::relocaliseByGravity(const std::vector<Eigen::Vector3d>& points_w,
                                   const std::vector<Eigen::Vector2d>& pixels,
                                   const std::vector<MapPointId>& ids, const std::vector<int>& rows,
                                   KeyFrameId reference) {
-  Eigen::Matrix3d K;
-  K << K_.fx, 0, K_.cx, 0, K_.fy, K_.cy, 0, 0, 1;
+  const Eigen::Matrix3d K = camera_.K();
   PnpConfig pnp_config = config_.pnp;
   pnp_config.ransac_iterations = std::max(pnp_config.ransac_iterations, 2000);
   pnp_config.min_inliers = config_.keypoint_gravity_min_inliers;
@@ -606,16 +605,7 @@ bool Tracker::relocaliseByGravity(const std::vector<Eigen::Vector3d>& points_w,
         for (const auto& obs : p->observations) observers.insert(obs.first);
       }
     }
-    std::unordered_set<MapPointId> seen;
-    std::vector<MapPointId> sample_ids;
-    for (const auto& o : observers) {
-      const KeyFrame* kf = map_->keyframe(o);
-      if (!kf) continue;
-      for (const auto& id : kf->points) {
-        if (id.valid() && seen.insert(id).second) sample_ids.push_back(id);
-      }
-    }
-    samples = samplesOf(sample_ids);
+    samples = samplesOf(pointsSeenBy(*map_, observers));
   }
   T_c_w_ = pnp.T_c_w;
   reference_kf_ = reference;
@@ -744,8 +734,7 @@ bool Tracker::initialise(TrackResult* result) {
   if (static_cast<int>(attempts.size()) > config_.init_attempts) {
     attempts.resize(static_cast<size_t>(std::max(1, config_.init_attempts)));
   }
-  Eigen::Matrix3d K;
-  K << K_.fx, 0, K_.cx, 0, K_.fy, K_.cy, 0, 0, 1;
+  const Eigen::Matrix3d K = camera_.K();
   std::optional<TwoViewResult> chosen;
   const Frame* first = nullptr;
   std::vector<std::pair<int, int>> pairs;

@@ -156,6 +156,19 @@ Eigen::Matrix3d refitFundamental(const std::vector<Eigen::Vector2d>& n1,
 /// noise and puts planar scenes on the H/F decision boundary).
 double residualVariance(double sigma) { return 2.0 * sigma * sigma; }
 
+/// One correspondence's part of a model score, as ORB-SLAM scores: each
+/// direction whose chi2 (squared residual over its variance) is below
+/// `inlier_chi2` adds kChi2TwoDof - chi2; an inlier passes both. Written so
+/// that NaN (a point mapped to infinity) fails.
+void scoreCorrespondence(size_t i, double chi1, double chi2, double inlier_chi2, ScoredModel* out) {
+  if (std::isfinite(chi1) && std::isfinite(chi2)) out->chi2[i] = std::max(chi1, chi2);
+  if (chi1 <= inlier_chi2) out->score += kChi2TwoDof - chi1;
+  if (chi2 <= inlier_chi2) out->score += kChi2TwoDof - chi2;
+  if (!(chi1 <= inlier_chi2) || !(chi2 <= inlier_chi2)) return;
+  out->inliers[i] = true;
+  ++out->num_inliers;
+}
+
 /// ORB-SLAM's homography score: symmetric transfer error, each direction an
 /// inlier below the 2-dof chi2 threshold and contributing (th - chi2).
 ScoredModel scoreHomography(const Eigen::Matrix3d& H21, const std::vector<Eigen::Vector2d>& p1,
@@ -173,14 +186,7 @@ ScoredModel scoreHomography(const Eigen::Matrix3d& H21, const std::vector<Eigen:
     const Eigen::Vector3d x21 = H21 * p1[i].homogeneous();
     const double chi1 = (p1[i] - x12.hnormalized()).squaredNorm() * inv_sigma2;
     const double chi2 = (p2[i] - x21.hnormalized()).squaredNorm() * inv_sigma2;
-    if (std::isfinite(chi1) && std::isfinite(chi2)) out.chi2[i] = std::max(chi1, chi2);
-    // Each direction scores on its own; an inlier passes both. Written so
-    // that NaN (a point mapped to infinity) fails.
-    if (chi1 <= kChi2TwoDof) out.score += kChi2TwoDof - chi1;
-    if (chi2 <= kChi2TwoDof) out.score += kChi2TwoDof - chi2;
-    if (!(chi1 <= kChi2TwoDof) || !(chi2 <= kChi2TwoDof)) continue;
-    out.inliers[i] = true;
-    ++out.num_inliers;
+    scoreCorrespondence(i, chi1, chi2, kChi2TwoDof, &out);
   }
   return out;
 }
@@ -205,12 +211,7 @@ ScoredModel scoreFundamental(const Eigen::Matrix3d& F21, const std::vector<Eigen
     const double num = x2.dot(l2);  // == x1.dot(l1)
     const double chi2 = num * num / l2.head<2>().squaredNorm() * inv_sigma2;
     const double chi1 = num * num / l1.head<2>().squaredNorm() * inv_sigma2;
-    if (std::isfinite(chi1) && std::isfinite(chi2)) out.chi2[i] = std::max(chi1, chi2);
-    if (chi1 <= kChi2OneDof) out.score += kChi2TwoDof - chi1;
-    if (chi2 <= kChi2OneDof) out.score += kChi2TwoDof - chi2;
-    if (!(chi1 <= kChi2OneDof) || !(chi2 <= kChi2OneDof)) continue;
-    out.inliers[i] = true;
-    ++out.num_inliers;
+    scoreCorrespondence(i, chi1, chi2, kChi2OneDof, &out);
   }
   return out;
 }
