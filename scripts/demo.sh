@@ -1,26 +1,48 @@
 #!/usr/bin/env bash
-# Installs what is missing, builds, and runs eCAR's main job.
+# Installs what is missing, builds, and runs eCAR's main job: the edge server and
+# two devices walking the synthetic corridor (device_0 from one end, device_1
+# from the other), each device fed by its rendered dataset, headless; then
+# prints the session summary (uploads, local graphs, device tracking, device-vs-
+# server error, ATE, local graph bytes, latency). Outputs in out/demo/.
 #
-# So far: generates a short synthetic sequence of the corridor (device_0 walks
-# the first metres) and prints where it is, its frame count and the path of a
-# contact sheet of its frames.
-#
-# Usage: scripts/demo.sh [--frames N]
+# Usage: scripts/demo.sh [--frames N] [--sync-mode ecar|edgeslam] [--gui]
+#   --frames N   frames per device (default 400; 0 = the whole 30 m walk)
+#   --gui        the same demo with rviz (roslaunch launch/demo.launch), needs a display
 set -eo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
-FRAMES=120
+FRAMES=400
+SYNC=ecar
+GUI=0
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --frames) FRAMES="$2"; shift 2 ;;
-    -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
+    --sync-mode) SYNC="$2"; shift 2 ;;
+    --gui) GUI=1; shift ;;
+    -h|--help) sed -n '2,11p' "$0"; exit 0 ;;
     *) echo "demo.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
 bash scripts/setup.sh
 source scripts/env.sh
 
-OUT="$ROOT/out/demo/corridor_device_0"
-echo "[demo] rendering $FRAMES frames of config/scenes/corridor.yaml (device_0)"
-rosrun ecar_sim make_dataset --scene config/scenes/corridor.yaml --device device_0 \
-  --frames "$FRAMES" --out "$OUT" --bag
+DATA="$ROOT/out/demo/datasets"
+if [[ $GUI == 1 ]]; then
+  # The datasets as run_session names them (rendered here when missing), then the
+  # live demo with rviz.
+  SUFFIX=""
+  [[ $FRAMES != 0 ]] && SUFFIX="_f$FRAMES"
+  for d in device_0 device_1; do
+    dir="$DATA/corridor_$d$SUFFIX"
+    if [[ ! -f "$dir/groundtruth.txt" ]]; then
+      args=(--scene config/scenes/corridor.yaml --device "$d" --out "$dir" --quiet)
+      [[ $FRAMES != 0 ]] && args+=(--frames "$FRAMES")
+      rosrun ecar_sim make_dataset "${args[@]}"
+    fi
+  done
+  exec roslaunch launch/demo.launch datasets:="$DATA" suffix:="$SUFFIX" sync_mode:="$SYNC"
+fi
+
+echo "[demo] server + device_0 and device_1 on the synthetic corridor ($SYNC mode), headless"
+rosrun ecar_sim run_session --scene config/scenes/corridor.yaml --devices 2 \
+  --frames "$FRAMES" --sync-mode "$SYNC" --datasets "$DATA" --out "$ROOT/out/demo/session"

@@ -1,0 +1,191 @@
+#!/usr/bin/python3
+# (The system interpreter, not `env python3`: a python3 from pyenv or a venv
+# first on PATH has no rospy.)
+"""End to end (started by test/two_devices.test): the server and two devices.
+
+Renders short datasets of two corridor devices, plays them (each player paced
+by its device), and asserts that
+- each device receives a local graph for at least 90% of its uploads;
+- both devices align into one map: their server poses fit the ground truth
+  with a single rigid transform (the map is metric: uploads carry odometry);
+- each device tracks at least 95% of its frames after its first local graph,
+  within 1 cm of the server's pose on the frames both estimated.
+
+Private params: ~scene (scene file), ~player_launch, ~frames, ~devices
+(comma-separated, default device_0,device_2).
+"""
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import unittest
+
+import numpy as np
+import rospy
+import rostest
+from ecar_msgs.msg import DeviceFrame, LocalGraph
+from std_msgs.msg import Bool
+
+PKG = "ecar_sim"
+
+
+def read_tum(path):
+    """{timestamp: position} of a TUM trajectory."""
+    out = {}
+    with open(path) as f:
+        for line in f:
+            if line.strip() and not line.startswith("#"):
+                v = [float(x) for x in line.split()]
+                out[v[0]] = np.array(v[1:4])
+    return out
+
+
+def read_frame_times(folder):
+    with open(os.path.join(folder, "rgb.txt")) as f:
+        return [float(l.split()[0]) for l in f if l.strip() and not l.startswith("#")]
+
+
+def rigid_fit_rmse(src, dst):
+    """RMSE after the least-squares rotation + translation mapping src onto dst."""
+    src, dst = np.asarray(src), np.asarray(dst)
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    u, _, vt = np.linalg.svd((dst - mu_d).T @ (src - mu_s))
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    r = u @ d @ vt
+    err = dst - (src - mu_s) @ r.T - mu_d
+    return float(np.sqrt((err ** 2).sum(1).mean()))
+
+
+class TwoDevicesTest(unittest.TestCase):
+    def setUp(self):
+        self.scene = rospy.get_param("~scene")
+        self.player_launch = rospy.get_param("~player_launch")
+        self.frames = int(rospy.get_param("~frames", 140))
+        self.devices = rospy.get_param("~devices", "device_0,device_2").split(",")
+        self.tmp = tempfile.mkdtemp(prefix="ecar_two_devices_")
+        self.lock = threading.Lock()
+        self.device_frames = {d: {} for d in self.devices}
+        self.server = {d: {} for d in self.devices}
+        self.graphs = {d: 0 for d in self.devices}
+        self.epochs = set()
+        self.finished = {d: False for d in self.devices}
+        self.last_activity = time.time()
+        self.players = []
+
+    def tearDown(self):
+        for p in self.players:
+            if p.poll() is None:
+                p.terminate()
+                p.wait()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def on_frame(self, m):
+        with self.lock:
+            self.device_frames[m.device_id][m.frame_index] = m
+            self.last_activity = time.time()
+
+    def on_graph(self, m, device):
+        with self.lock:
+            self.graphs[device] += 1
+            if m.status in (LocalGraph.OK, LocalGraph.RELOCALISED):
+                p = m.pose.position
+                self.server[device][m.frame_index] = np.array([p.x, p.y, p.z])
+                self.epochs.add(m.map_epoch)
+            self.last_activity = time.time()
+
+    def on_finished(self, m, device):
+        with self.lock:
+            self.finished[device] = self.finished[device] or m.data
+
+    def render(self, device):
+        out = os.path.join(self.tmp, device)
+        subprocess.run(["rosrun", "ecar_sim", "make_dataset", "--scene", self.scene, "--device",
+                        device, "--frames", str(self.frames), "--out", out, "--quiet"],
+                       check=True, stdout=subprocess.DEVNULL)
+        return out
+
+    def wait_connected(self, timeout):
+        master = rospy.get_master()
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            _, _, state = master.getSystemState()
+            subs = dict(state[1])
+            if all("/edge_server" in subs.get("/%s/upload" % d, []) for d in self.devices):
+                return True
+            time.sleep(0.2)
+        return False
+
+    def test_two_devices_share_one_map(self):
+        datasets = {d: self.render(d) for d in self.devices}
+        for d in self.devices:
+            rospy.Subscriber("/%s/device_frame" % d, DeviceFrame, self.on_frame, queue_size=500)
+            rospy.Subscriber("/%s/local_graph" % d, LocalGraph, self.on_graph, callback_args=d,
+                             queue_size=500)
+            rospy.Subscriber("/%s/player/finished" % d, Bool, self.on_finished, callback_args=d)
+        self.assertTrue(self.wait_connected(60.0), "devices did not connect to the server")
+        for d in self.devices:
+            self.players.append(subprocess.Popen(
+                ["roslaunch", self.player_launch, "dataset:=" + datasets[d], "device:=" + d,
+                 "pace_by_consumer:=true", "ack_timeout:=5.0", "output:=log"],
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+
+        deadline = time.time() + 300.0
+        while time.time() < deadline and not rospy.is_shutdown():
+            with self.lock:
+                if all(self.finished.values()) and time.time() - self.last_activity > 3.0:
+                    break
+            time.sleep(0.5)
+        with self.lock:
+            self.assertTrue(all(self.finished.values()), "players did not finish: %s" %
+                            self.finished)
+
+        src, dst = [], []
+        for d in self.devices:
+            frames = self.device_frames[d]
+            uploads = sum(1 for m in frames.values() if m.uploaded)
+            self.assertGreater(uploads, 0, "%s uploaded nothing" % d)
+            self.assertGreaterEqual(self.graphs[d], 0.9 * uploads,
+                                    "%s: %d local graphs for %d uploads" %
+                                    (d, self.graphs[d], uploads))
+            server = self.server[d]
+            self.assertGreaterEqual(len(server), 0.5 * uploads,
+                                    "%s: only %d of %d uploads aligned" % (d, len(server), uploads))
+
+            started = [m for m in frames.values() if m.status != DeviceFrame.NOT_INITIALISED]
+            tracked = [m for m in started if m.status == DeviceFrame.OK]
+            self.assertGreaterEqual(len(tracked), 0.95 * len(started),
+                                    "%s tracked %d of %d frames after its first graph" %
+                                    (d, len(tracked), len(started)))
+            errors = []
+            for f, p_server in server.items():
+                m = frames.get(f)
+                if m is not None and m.status == DeviceFrame.OK:
+                    p = m.pose.position
+                    errors.append(np.linalg.norm(np.array([p.x, p.y, p.z]) - p_server))
+            self.assertGreater(len(errors), 5, "%s: no frames with both poses" % d)
+            rmse = float(np.sqrt(np.mean(np.square(errors))))
+            rospy.loginfo("%s: %d uploads, %d graphs, %d aligned, device tracked %d/%d, "
+                          "device-vs-server RMSE %.2f cm", d, uploads, self.graphs[d], len(server),
+                          len(tracked), len(started), 100 * rmse)
+            self.assertLess(rmse, 0.01, "%s: device-vs-server RMSE %.2f cm" % (d, 100 * rmse))
+
+            times = read_frame_times(datasets[d])
+            gt = read_tum(os.path.join(datasets[d], "groundtruth.txt"))
+            for f, p_server in server.items():
+                if times[f] in gt:
+                    src.append(p_server)
+                    dst.append(gt[times[f]])
+        self.assertEqual(len(self.epochs), 1, "map epoch changed: %s" % self.epochs)
+        rmse = rigid_fit_rmse(src, dst)
+        rospy.loginfo("both devices against ground truth with one transform: ATE %.2f cm",
+                      100 * rmse)
+        self.assertLess(rmse, 0.05, "one transform for both devices leaves %.2f cm" % (100 * rmse))
+
+
+if __name__ == "__main__":
+    rospy.init_node("two_devices_test")
+    rostest.rosrun(PKG, "two_devices", TwoDevicesTest, sys.argv)
