@@ -113,6 +113,12 @@ void Device::onOdometry(const geometry_msgs::PoseStampedConstPtr& msg) {
     std::lock_guard<std::mutex> lock(mutex_);
     odometry_.emplace_back(msg->header.stamp, T_o_c);
     if (odometry_.size() > kOdometryKept) odometry_.pop_front();
+    odometry_seen_ = true;
+    if (held_upload_ && held_upload_->header.stamp == msg->header.stamp) {
+      held_upload_->odometry = ecar_sim::toPose(T_o_c);
+      held_upload_->has_odometry = true;
+      publishHeldUpload();
+    }
   } catch (const ecar::Error& e) {
     ROS_WARN_THROTTLE(kWarnPeriod, "%s: odometry dropped: %s", config_.device_id.c_str(), e.what());
   }
@@ -154,6 +160,11 @@ void Device::onImage(const sensor_msgs::ImageConstPtr& msg) {
   }
   has_last_seq_ = true;
   last_seq_ = seq;
+  if (held_upload_) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: no odometry with the stamp of frame %u: uploaded without",
+                      config_.device_id.c_str(), held_upload_->frame_index);
+    publishHeldUpload();
+  }
   const ros::Time now = ros::Time::now();
   prunePending(now);
 
@@ -192,12 +203,10 @@ void Device::upload(const cv::Mat& gray, const sensor_msgs::Image& image) {
   }
   c.last_graph_frame = last_graph_frame_;
   c.reset = reset_next_;
-  c.sent = ros::Time::now();
-  const ecar_msgs::Upload msg = toUpload(c);
+  if (reset_next_) last_reset_frame_ = c.frame_index;
+  reset_next_ = false;
   Pending p;
   p.frame_index = c.frame_index;
-  p.sent = c.sent;
-  p.bytes_up = wireBytes(msg);
   if (!free_images_.empty()) {
     p.gray = std::move(free_images_.back());
     free_images_.pop_back();
@@ -209,10 +218,26 @@ void Device::upload(const cv::Mat& gray, const sensor_msgs::Image& image) {
     free_images_.push_back(std::move(pending_.front().gray));
     pending_.pop_front();
   }
+  p.sent = ros::Time::now();
   pending_.push_back(std::move(p));
+  held_upload_ = toUpload(c);
+  // A device with odometry whose pose for this stamp has not arrived yet
+  // (published after the image) holds the upload until it comes.
+  if (c.T_o_c || !odometry_seen_) publishHeldUpload();
+}
+
+void Device::publishHeldUpload() {
+  if (!held_upload_) return;
+  ecar_msgs::Upload& msg = *held_upload_;
+  msg.sent = ros::Time::now();
+  for (auto it = pending_.rbegin(); it != pending_.rend(); ++it) {
+    if (it->frame_index != msg.frame_index) continue;
+    it->sent = msg.sent;
+    it->bytes_up = wireBytes(msg);
+    break;
+  }
   upload_pub_.publish(msg);
-  if (reset_next_) last_reset_frame_ = c.frame_index;
-  reset_next_ = false;
+  held_upload_.reset();
   uploaded_since_progress_ = true;
 }
 
@@ -421,6 +446,7 @@ void Device::onConnectTimer() {
   // Uploads sent before are not answered by a restarted server.
   for (auto& p : pending_) free_images_.push_back(std::move(p.gray));
   pending_.clear();
+  held_upload_.reset();
   releaseFrameDone(true);
   connected_ = true;
   reset_next_ = true;

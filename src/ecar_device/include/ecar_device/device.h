@@ -34,6 +34,7 @@
 #include <opencv2/core.hpp>
 
 #include <ecar_msgs/LocalGraph.h>
+#include <ecar_msgs/Upload.h>
 
 #include "ecar_core/device_tracker.h"
 
@@ -100,8 +101,11 @@ class Device {
   void onPaceTimer();
 
   // The following helpers need mutex_ held.
-  /// JPEG-encodes and publishes an upload of `gray`; keeps the frame pending.
+  /// JPEG-encodes an upload of `gray` and keeps the frame pending; publishes
+  /// it at once, or holds it until the odometry with the image's stamp comes.
   void upload(const cv::Mat& gray, const sensor_msgs::Image& image);
+  /// Publishes the held upload (sent = now) and records its bytes.
+  void publishHeldUpload();
   void publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
                      const ecar::DeviceTrackResult& result, bool uploaded);
   /// frame_done now, or held while ~pace_in_flight uploads are in flight.
@@ -121,6 +125,8 @@ class Device {
   bool has_camera_info_ = false;
   std::optional<Eigen::Vector3d> gravity_c_;
   std::deque<std::pair<ros::Time, ecar::SE3>> odometry_;  ///< recent T_o_c by stamp
+  bool odometry_seen_ = false;
+  std::optional<ecar_msgs::Upload> held_upload_;  ///< waiting for its odometry
   bool connected_ = false;
   bool has_epoch_ = false;
   uint32_t epoch_ = 0;
