@@ -1,0 +1,162 @@
+// One eCAR device in its namespace, used by device_node and the nodelet
+// ecar_device/Device (see launch/device.launch and config/device.yaml).
+//
+// Subscribes (relative to its namespace /<device>/): camera/image_raw,
+// camera/camera_info, imu (sensor_msgs/Imu, specific force in the camera
+// frame), odometry (geometry_msgs/PoseStamped T_odom_camera, same stamp as the
+// image), and the local graph topic the server names on connection.
+// Calls /ecar/connect (retrying until the service exists; again when no local
+// graph came for ~reconnect_timeout s while uploading).
+// Publishes: the upload topic the server names (ecar_msgs/Upload, every
+// ~every-th frame as JPEG), pose (geometry_msgs/PoseStamped, frame map), tf
+// map -> <device>/camera, device_frame (ecar_msgs/DeviceFrame, every frame),
+// metrics and /ecar/metrics (ecar_msgs/RoundTripMetrics, per local graph),
+// ar_view (bgr8, only when subscribed), frame_done (std_msgs/UInt32: the
+// header.seq of the frame just processed; with ~pace_in_flight > 0 only once
+// fewer uploads than that wait for their local graph, or after ~pace_timeout s).
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <geometry_msgs/PoseStamped.h>
+#include <ros/callback_queue.h>
+#include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <sensor_msgs/Imu.h>
+#include <tf2_ros/transform_broadcaster.h>
+#include <opencv2/core.hpp>
+
+#include <ecar_msgs/LocalGraph.h>
+#include <ecar_msgs/Upload.h>
+
+#include "ecar_core/device_tracker.h"
+
+namespace ecar_device {
+
+/// Private parameters (~name) of a device, with their defaults; documented in config/device.yaml.
+struct DeviceConfig {
+  std::string device_id;        ///< ~device_id: default the node's namespace without '/'
+  int every = 4;                ///< ~every: upload every Nth camera frame (header.seq % every == 0)
+  int jpeg_quality = 70;        ///< ~jpeg_quality: 1..100
+  std::string sync_mode;        ///< ~sync_mode: "" (server default), "ecar" or "edgeslam"
+  int max_pending = 8;          ///< ~max_pending: uploaded frames kept waiting for their graph
+  double connect_period = 0.5;  ///< ~connect_period: s between connection attempts
+  double reconnect_timeout = 3.0;  ///< ~reconnect_timeout: s without a local graph while uploading
+  int pace_in_flight = 0;          ///< ~pace_in_flight: 0 = frame_done at once
+  double pace_timeout = 1.0;       ///< ~pace_timeout: s to hold a frame_done at most
+  std::string map_frame = "map";   ///< ~map_frame: frame of poses and the tf parent
+  bool publish_tf = true;          ///< ~publish_tf: tf map -> <device>/camera
+  std::string connect_service = "/ecar/connect";       ///< ~connect_service
+  std::string global_metrics_topic = "/ecar/metrics";  ///< ~global_metrics_topic
+  ecar::DeviceTrackerConfig tracker;                   ///< ~keyframe_queue, ~tracking/..., ~orb/...
+
+  /// Throws ecar::Error naming the parameter (e.g. "~every") of the first bad value.
+  void validate() const;
+};
+
+/// The config from a struct of parameters (as rosparam holds the node's
+/// private namespace; an invalid value = none set). `ns` is the node's namespace
+/// (the default device id). Members it does not know go to *unknown (may be
+/// null). Throws ecar::Error naming the parameter on a wrong type or value.
+DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::string& ns,
+                               std::vector<std::string>* unknown);
+
+/// Reads every parameter above from the private node handle, then validates.
+/// `ns` is the node's namespace (the default device id). Throws ecar::Error
+/// naming the parameter on a wrong type or value.
+DeviceConfig loadDeviceConfig(const ros::NodeHandle& pnh, const std::string& ns);
+
+class Device {
+ public:
+  /// `nh` resolves topics in the device's namespace. Starts the connection
+  /// thread (its own callback queue) at once.
+  Device(const ros::NodeHandle& nh, const DeviceConfig& config);
+  ~Device();
+  Device(const Device&) = delete;
+  Device& operator=(const Device&) = delete;
+
+ private:
+  /// An uploaded frame waiting for its local graph.
+  struct Pending {
+    uint32_t frame_index = 0;
+    ros::Time sent;
+    cv::Mat gray;  ///< the device's own uncompressed image
+    uint32_t bytes_up = 0;
+    float tracking_time = 0.f;  ///< s, the device's tracking of this frame
+  };
+
+  void onImage(const sensor_msgs::ImageConstPtr& msg);
+  void onCameraInfo(const sensor_msgs::CameraInfoConstPtr& msg);
+  void onImu(const sensor_msgs::ImuConstPtr& msg);
+  void onOdometry(const geometry_msgs::PoseStampedConstPtr& msg);
+  void onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg);
+  void onConnectTimer();
+  void onPaceTimer();
+
+  // The following helpers need mutex_ held.
+  /// JPEG-encodes an upload of `gray` and keeps the frame pending; publishes
+  /// it at once, or holds it until the odometry with the image's stamp comes.
+  void upload(const cv::Mat& gray, const sensor_msgs::Image& image);
+  /// Publishes the held upload (sent = now) and records its bytes.
+  void publishHeldUpload();
+  void publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
+                     const ecar::DeviceTrackResult& result, bool uploaded);
+  /// frame_done now, or held while ~pace_in_flight uploads are in flight.
+  void frameDone(uint32_t seq);
+  void releaseFrameDone(bool force);
+  /// Drops pending frames older than ~reconnect_timeout (their graph is lost).
+  void prunePending(const ros::Time& now);
+  void changeEpoch(uint32_t epoch, const char* why);
+
+  DeviceConfig config_;
+  ros::NodeHandle nh_;
+  std::string camera_frame_;
+
+  mutable std::mutex mutex_;                      ///< guards everything below
+  std::unique_ptr<ecar::DeviceTracker> tracker_;  ///< built on the first camera_info
+  sensor_msgs::CameraInfo camera_info_;
+  bool has_camera_info_ = false;
+  std::optional<Eigen::Vector3d> gravity_c_;
+  std::deque<std::pair<ros::Time, ecar::SE3>> odometry_;  ///< recent T_o_c by stamp
+  bool odometry_seen_ = false;
+  std::optional<ecar_msgs::Upload> held_upload_;  ///< waiting for its odometry
+  bool connected_ = false;
+  bool has_epoch_ = false;
+  uint32_t epoch_ = 0;
+  bool reset_next_ = true;         ///< the next upload asks for every position again
+  uint32_t last_reset_frame_ = 0;  ///< frame of the last upload with reset
+  uint32_t last_graph_frame_ = 0;
+  ros::WallTime last_progress_;  ///< connection or last local graph
+  bool uploaded_since_progress_ = false;
+  std::string upload_topic_, local_graph_topic_;
+  std::deque<Pending> pending_;
+  std::vector<cv::Mat> free_images_;  ///< buffers of released pending frames
+  bool has_last_seq_ = false;
+  uint32_t last_seq_ = 0;
+  std::optional<uint32_t> held_done_;
+  ros::WallTime held_since_;
+  std::vector<uint8_t> jpeg_;
+  cv::Mat ar_image_;
+
+  ros::Publisher upload_pub_, pose_pub_, device_frame_pub_, metrics_pub_, global_metrics_pub_,
+      ar_view_pub_, frame_done_pub_;
+  ros::Subscriber image_sub_, info_sub_, imu_sub_, odometry_sub_, graph_sub_;
+  tf2_ros::TransformBroadcaster tf_;
+  ros::SteadyTimer pace_timer_;
+
+  // Connection attempts run on their own queue and thread, so a slow or
+  // missing server never stalls the camera callbacks.
+  ros::CallbackQueue connect_queue_;
+  ros::NodeHandle connect_nh_;
+  ros::SteadyTimer connect_timer_;
+  std::unique_ptr<ros::AsyncSpinner> connect_spinner_;
+};
+
+}  // namespace ecar_device

@@ -1,0 +1,459 @@
+#include "ecar_device/device.h"
+
+#include <algorithm>
+#include <cstdio>
+
+#include <cv_bridge/cv_bridge.h>
+#include <sensor_msgs/image_encodings.h>
+#include <std_msgs/UInt32.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <ecar_msgs/Connect.h>
+#include <ecar_msgs/DeviceFrame.h>
+#include <ecar_msgs/RoundTripMetrics.h>
+#include <ecar_msgs/Upload.h>
+
+#include "ecar_core/error.h"
+#include "ecar_device/conversions.h"
+#include "ecar_sim/conversions.h"
+
+namespace ecar_device {
+namespace {
+
+constexpr double kWarnPeriod = 2.0;  ///< s between repeated warnings of one kind
+constexpr size_t kOdometryKept = 64;
+
+const char* stateName(ecar::TrackingState s) { return ecar::toString(s); }
+
+}  // namespace
+
+Device::Device(const ros::NodeHandle& nh, const DeviceConfig& config)
+    : config_(config), nh_(nh), camera_frame_(config.device_id + "/camera"), connect_nh_(nh) {
+  config_.validate();
+  // Conventional names until the server names others on connection: the
+  // server's subscriber can connect before the first upload.
+  upload_topic_ = nh_.resolveName("upload");
+  local_graph_topic_ = nh_.resolveName("local_graph");
+  upload_pub_ = nh_.advertise<ecar_msgs::Upload>(upload_topic_, 4);
+  graph_sub_ = nh_.subscribe(local_graph_topic_, 8, &Device::onLocalGraph, this);
+  pose_pub_ = nh_.advertise<geometry_msgs::PoseStamped>("pose", 10);
+  device_frame_pub_ = nh_.advertise<ecar_msgs::DeviceFrame>("device_frame", 30);
+  metrics_pub_ = nh_.advertise<ecar_msgs::RoundTripMetrics>("metrics", 30);
+  global_metrics_pub_ =
+      nh_.advertise<ecar_msgs::RoundTripMetrics>(config_.global_metrics_topic, 30);
+  ar_view_pub_ = nh_.advertise<sensor_msgs::Image>("ar_view", 1);
+  frame_done_pub_ = nh_.advertise<std_msgs::UInt32>("frame_done", 10);
+  info_sub_ = nh_.subscribe("camera/camera_info", 1, &Device::onCameraInfo, this);
+  imu_sub_ = nh_.subscribe("imu", 50, &Device::onImu, this);
+  odometry_sub_ = nh_.subscribe("odometry", 10, &Device::onOdometry, this);
+  // A short queue: when tracking falls behind the camera, old frames go.
+  image_sub_ = nh_.subscribe("camera/image_raw", 2, &Device::onImage, this);
+  if (config_.pace_in_flight > 0) {
+    pace_timer_ = nh_.createSteadyTimer(ros::WallDuration(0.01),
+                                        [this](const ros::SteadyTimerEvent&) { onPaceTimer(); });
+  }
+  last_progress_ = ros::WallTime::now();
+  connect_nh_.setCallbackQueue(&connect_queue_);
+  connect_timer_ =
+      connect_nh_.createSteadyTimer(ros::WallDuration(config_.connect_period),
+                                    [this](const ros::SteadyTimerEvent&) { onConnectTimer(); });
+  connect_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &connect_queue_);
+  connect_spinner_->start();
+  ROS_INFO("%s: device up (every %d, JPEG %d, sync_mode \"%s\", keyframe queue %d)",
+           config_.device_id.c_str(), config_.every, config_.jpeg_quality,
+           config_.sync_mode.c_str(), config_.tracker.keyframe_queue);
+}
+
+Device::~Device() {
+  connect_timer_.stop();
+  if (connect_spinner_) connect_spinner_->stop();
+  pace_timer_.stop();
+}
+
+// ---------------------------------------------------------------- sensors
+
+void Device::onCameraInfo(const sensor_msgs::CameraInfoConstPtr& msg) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (has_camera_info_ && msg->width == camera_info_.width && msg->height == camera_info_.height &&
+      msg->K == camera_info_.K && msg->D == camera_info_.D) {
+    return;
+  }
+  try {
+    const ecar::PinholeCamera camera = ecar_sim::fromCameraInfo(*msg);
+    if (has_camera_info_) {
+      ROS_WARN("%s: camera_info changed: local map dropped, reconnecting",
+               config_.device_id.c_str());
+      connected_ = false;
+    }
+    tracker_ = std::make_unique<ecar::DeviceTracker>(camera, config_.tracker);
+    camera_info_ = *msg;
+    has_camera_info_ = true;
+    pending_.clear();
+  } catch (const ecar::Error& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: camera_info dropped: %s", config_.device_id.c_str(),
+                      e.what());
+  }
+}
+
+void Device::onImu(const sensor_msgs::ImuConstPtr& msg) {
+  const Eigen::Vector3d g = ecar_sim::fromVector3(msg->linear_acceleration);
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!g.allFinite()) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: imu dropped: non-finite linear_acceleration",
+                      config_.device_id.c_str());
+    return;
+  }
+  gravity_c_ = g;
+}
+
+void Device::onOdometry(const geometry_msgs::PoseStampedConstPtr& msg) {
+  try {
+    const ecar::SE3 T_o_c = ecar_sim::fromPose(msg->pose);
+    std::lock_guard<std::mutex> lock(mutex_);
+    odometry_.emplace_back(msg->header.stamp, T_o_c);
+    if (odometry_.size() > kOdometryKept) odometry_.pop_front();
+    odometry_seen_ = true;
+    if (held_upload_ && held_upload_->header.stamp == msg->header.stamp) {
+      held_upload_->odometry = ecar_sim::toPose(T_o_c);
+      held_upload_->has_odometry = true;
+      publishHeldUpload();
+    }
+  } catch (const ecar::Error& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: odometry dropped: %s", config_.device_id.c_str(), e.what());
+  }
+}
+
+// ---------------------------------------------------------------- frames
+
+void Device::onImage(const sensor_msgs::ImageConstPtr& msg) {
+  const uint32_t seq = msg->header.seq;
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!tracker_) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: image dropped: no camera_info yet",
+                      config_.device_id.c_str());
+    frameDone(seq);
+    return;
+  }
+  cv_bridge::CvImageConstPtr cv;
+  try {
+    cv = cv_bridge::toCvShare(msg, sensor_msgs::image_encodings::MONO8);
+  } catch (const cv_bridge::Exception& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: image dropped: encoding \"%s\": %s",
+                      config_.device_id.c_str(), msg->encoding.c_str(), e.what());
+    frameDone(seq);
+    return;
+  }
+  const cv::Mat& gray = cv->image;
+  if (gray.cols != static_cast<int>(camera_info_.width) ||
+      gray.rows != static_cast<int>(camera_info_.height)) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: image dropped: size %dx%d, camera_info says %ux%u",
+                      config_.device_id.c_str(), gray.cols, gray.rows, camera_info_.width,
+                      camera_info_.height);
+    frameDone(seq);
+    return;
+  }
+  if (has_last_seq_ && seq > last_seq_ + 1) {
+    ROS_WARN_THROTTLE(kWarnPeriod,
+                      "%s: falling behind the camera: %u frames skipped before frame %u",
+                      config_.device_id.c_str(), seq - last_seq_ - 1, seq);
+  }
+  has_last_seq_ = true;
+  last_seq_ = seq;
+  if (held_upload_) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: no odometry with the stamp of frame %u: uploaded without",
+                      config_.device_id.c_str(), held_upload_->frame_index);
+    publishHeldUpload();
+  }
+  const ros::Time now = ros::Time::now();
+  prunePending(now);
+
+  bool uploaded = false;
+  if (connected_ && seq % static_cast<uint32_t>(config_.every) == 0) {
+    upload(gray, *msg);
+    uploaded = true;
+  }
+  const ecar::DeviceTrackResult& r = tracker_->track(gray, msg->header.stamp.toSec(), seq);
+  if (uploaded && !pending_.empty() && pending_.back().frame_index == seq) {
+    pending_.back().tracking_time = static_cast<float>(r.total_ms / 1000.0);
+  }
+  publishResult(*msg, gray, r, uploaded);
+  const double behind = (ros::Time::now() - msg->header.stamp).toSec();
+  if (behind > 0.5) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: falling behind the camera: frame %u done %.2f s late",
+                      config_.device_id.c_str(), seq, behind);
+  }
+  frameDone(seq);
+}
+
+void Device::upload(const cv::Mat& gray, const sensor_msgs::Image& image) {
+  UploadContent c;
+  c.device_id = config_.device_id;
+  c.camera_frame = camera_frame_;
+  c.frame_index = image.header.seq;
+  c.stamp = image.header.stamp;
+  cv::imencode(".jpg", gray, jpeg_, {cv::IMWRITE_JPEG_QUALITY, config_.jpeg_quality});
+  c.jpeg = jpeg_;
+  c.gravity_c = gravity_c_;
+  for (auto it = odometry_.rbegin(); it != odometry_.rend(); ++it) {
+    if (it->first == image.header.stamp) {
+      c.T_o_c = it->second;
+      break;
+    }
+  }
+  c.last_graph_frame = last_graph_frame_;
+  c.reset = reset_next_;
+  if (reset_next_) last_reset_frame_ = c.frame_index;
+  reset_next_ = false;
+  Pending p;
+  p.frame_index = c.frame_index;
+  if (!free_images_.empty()) {
+    p.gray = std::move(free_images_.back());
+    free_images_.pop_back();
+  }
+  gray.copyTo(p.gray);
+  if (static_cast<int>(pending_.size()) >= config_.max_pending) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: %zu uploads without a local graph: frame %u forgotten",
+                      config_.device_id.c_str(), pending_.size(), pending_.front().frame_index);
+    free_images_.push_back(std::move(pending_.front().gray));
+    pending_.pop_front();
+  }
+  p.sent = ros::Time::now();
+  pending_.push_back(std::move(p));
+  held_upload_ = toUpload(c);
+  // A device with odometry whose pose for this stamp has not arrived yet
+  // (published after the image) holds the upload until it comes.
+  if (c.T_o_c || !odometry_seen_) publishHeldUpload();
+}
+
+void Device::publishHeldUpload() {
+  if (!held_upload_) return;
+  ecar_msgs::Upload& msg = *held_upload_;
+  msg.sent = ros::Time::now();
+  for (auto it = pending_.rbegin(); it != pending_.rend(); ++it) {
+    if (it->frame_index != msg.frame_index) continue;
+    it->sent = msg.sent;
+    it->bytes_up = wireBytes(msg);
+    break;
+  }
+  upload_pub_.publish(msg);
+  held_upload_.reset();
+  uploaded_since_progress_ = true;
+}
+
+void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
+                           const ecar::DeviceTrackResult& r, bool uploaded) {
+  device_frame_pub_.publish(toDeviceFrame(config_.device_id, image.header.stamp, config_.map_frame,
+                                          r, static_cast<uint32_t>(tracker_->numKeyFrames()),
+                                          static_cast<uint32_t>(tracker_->numPoints()), uploaded));
+  std_msgs::Header header;
+  header.stamp = image.header.stamp;
+  header.frame_id = config_.map_frame;
+  if (r.state == ecar::TrackingState::kOk) {
+    geometry_msgs::PoseStamped pose;
+    pose.header = header;
+    pose.pose = ecar_sim::toPose(r.T_w_c);
+    pose_pub_.publish(pose);
+    if (config_.publish_tf)
+      tf_.sendTransform(ecar_sim::toTransform(r.T_w_c, header, camera_frame_));
+  }
+  if (ar_view_pub_.getNumSubscribers() == 0) return;
+  cv::cvtColor(gray, ar_image_, cv::COLOR_GRAY2BGR);
+  for (const cv::Point2f& p : r.tracked_pixels) {
+    cv::circle(ar_image_, p, 3, cv::Scalar(0, 255, 0), 1, cv::LINE_AA);
+  }
+  char status[160];
+  std::snprintf(status, sizeof(status), "%s  frame %u  %s  %d pts  %zu kf  %zu map pts  %.1f ms%s",
+                config_.device_id.c_str(), r.frame_index, stateName(r.state), r.inliers,
+                tracker_->numKeyFrames(), tracker_->numPoints(), r.total_ms,
+                connected_ ? "" : "  (not connected)");
+  cv::rectangle(ar_image_, cv::Rect(0, 0, ar_image_.cols, 22), cv::Scalar(0, 0, 0), cv::FILLED);
+  cv::putText(ar_image_, status, cv::Point(6, 16), cv::FONT_HERSHEY_SIMPLEX, 0.45,
+              r.state == ecar::TrackingState::kOk ? cv::Scalar(0, 255, 0) : cv::Scalar(0, 0, 255),
+              1, cv::LINE_AA);
+  std_msgs::Header view_header = image.header;
+  view_header.frame_id = camera_frame_;
+  ar_view_pub_.publish(cv_bridge::CvImage(view_header, "bgr8", ar_image_).toImageMsg());
+}
+
+// ---------------------------------------------------------------- local graphs
+
+void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
+  const ros::Time received = ros::Time::now();
+  std::lock_guard<std::mutex> lock(mutex_);
+  const char* id = config_.device_id.c_str();
+  if (msg->device_id != config_.device_id) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph dropped: device_id \"%s\" is another device",
+                      id, msg->device_id.c_str());
+    return;
+  }
+  if (!tracker_) return;
+  const bool ok_status =
+      msg->status == ecar_msgs::LocalGraph::OK || msg->status == ecar_msgs::LocalGraph::RELOCALISED;
+  const bool edgeslam = msg->sync_mode == ecar_msgs::LocalGraph::SYNC_EDGESLAM;
+  ecar::LocalGraphInput graph;
+  ecar::FullLocalMap full;
+  if (ok_status) {
+    try {
+      if (edgeslam) {
+        full = fromFullLocalGraph(*msg);
+      } else {
+        graph = fromLocalGraph(*msg);
+      }
+    } catch (const ecar::Error& e) {
+      ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph for frame %u dropped: %s", id,
+                        msg->frame_index, e.what());
+      return;
+    }
+  }
+  auto it = std::find_if(pending_.begin(), pending_.end(),
+                         [&](const Pending& p) { return p.frame_index == msg->frame_index; });
+  if (it == pending_.end()) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph dropped: frame %u is not an upload in flight",
+                      id, msg->frame_index);
+    return;
+  }
+  if (!has_epoch_ || msg->map_epoch != epoch_) {
+    changeEpoch(msg->map_epoch, "a local graph");
+  }
+  last_graph_frame_ = msg->frame_index;
+  last_progress_ = ros::WallTime::now();
+  uploaded_since_progress_ = false;
+
+  RoundTrip trip;
+  trip.device_id = config_.device_id;
+  trip.bytes_up = it->bytes_up;
+  trip.sent = it->sent;
+  trip.received = received;
+  trip.tracking_time_device = it->tracking_time;
+  const ecar_msgs::RoundTripMetrics metrics = toRoundTripMetrics(*msg, trip);
+  metrics_pub_.publish(metrics);
+  global_metrics_pub_.publish(metrics);
+
+  if (ok_status && edgeslam) {
+    tracker_->replaceLocalMap(full);
+  } else if (ok_status) {
+    const ecar::GraphUpdate u = tracker_->addLocalGraph(it->gray, graph);
+    if (!u.queue.missing.empty() && msg->frame_index >= last_reset_frame_ && !reset_next_) {
+      ROS_WARN_THROTTLE(kWarnPeriod,
+                        "%s: local graph of frame %u named %zu points without a position: asking "
+                        "the server for every position again",
+                        id, msg->frame_index, u.queue.missing.size());
+      reset_next_ = true;
+    }
+  }
+  free_images_.push_back(std::move(it->gray));
+  pending_.erase(it);
+  releaseFrameDone(false);
+}
+
+void Device::changeEpoch(uint32_t epoch, const char* why) {
+  if (has_epoch_) {
+    ROS_INFO("%s: map epoch %u -> %u (from %s): local map dropped", config_.device_id.c_str(),
+             epoch_, epoch, why);
+    if (tracker_) tracker_->clear();
+    reset_next_ = true;
+  }
+  has_epoch_ = true;
+  epoch_ = epoch;
+}
+
+void Device::prunePending(const ros::Time& now) {
+  while (!pending_.empty() && (now - pending_.front().sent).toSec() > config_.reconnect_timeout) {
+    free_images_.push_back(std::move(pending_.front().gray));
+    pending_.pop_front();
+  }
+}
+
+// ---------------------------------------------------------------- pacing
+
+void Device::frameDone(uint32_t seq) {
+  if (config_.pace_in_flight <= 0 || static_cast<int>(pending_.size()) < config_.pace_in_flight) {
+    held_done_.reset();
+    std_msgs::UInt32 done;
+    done.data = seq;
+    frame_done_pub_.publish(done);
+    return;
+  }
+  if (!held_done_) held_since_ = ros::WallTime::now();
+  held_done_ = seq;
+}
+
+void Device::releaseFrameDone(bool force) {
+  if (!held_done_) return;
+  if (!force && static_cast<int>(pending_.size()) >= config_.pace_in_flight) return;
+  std_msgs::UInt32 done;
+  done.data = *held_done_;
+  held_done_.reset();
+  frame_done_pub_.publish(done);
+}
+
+void Device::onPaceTimer() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  prunePending(ros::Time::now());
+  const bool timed_out =
+      held_done_ && (ros::WallTime::now() - held_since_).toSec() >= config_.pace_timeout;
+  releaseFrameDone(timed_out);
+}
+
+// ---------------------------------------------------------------- connection
+
+void Device::onConnectTimer() {
+  ecar_msgs::Connect srv;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (!has_camera_info_) return;
+    if (connected_) {
+      const double silent = (ros::WallTime::now() - last_progress_).toSec();
+      if (!uploaded_since_progress_ || silent < config_.reconnect_timeout) return;
+      ROS_WARN("%s: no local graph for %.1f s while uploading: connecting again",
+               config_.device_id.c_str(), silent);
+      connected_ = false;
+    }
+    srv.request.device_id = config_.device_id;
+    srv.request.camera_info = camera_info_;
+    srv.request.sync_mode = config_.sync_mode;
+    srv.request.keyframe_queue = static_cast<uint32_t>(config_.tracker.keyframe_queue);
+  }
+  if (!ros::service::exists(config_.connect_service, false)) {
+    ROS_INFO_THROTTLE(10.0, "%s: waiting for %s", config_.device_id.c_str(),
+                      config_.connect_service.c_str());
+    return;
+  }
+  if (!ros::service::call(config_.connect_service, srv)) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: %s failed; retrying", config_.device_id.c_str(),
+                      config_.connect_service.c_str());
+    return;
+  }
+  if (!srv.response.accepted) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: connection refused: %s; retrying",
+                      config_.device_id.c_str(), srv.response.message.c_str());
+    return;
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!srv.response.upload_topic.empty() && srv.response.upload_topic != upload_topic_) {
+    upload_topic_ = srv.response.upload_topic;
+    upload_pub_ = nh_.advertise<ecar_msgs::Upload>(upload_topic_, 4);
+  }
+  if (!srv.response.local_graph_topic.empty() &&
+      srv.response.local_graph_topic != local_graph_topic_) {
+    local_graph_topic_ = srv.response.local_graph_topic;
+    graph_sub_ = nh_.subscribe(local_graph_topic_, 8, &Device::onLocalGraph, this);
+  }
+  if (!has_epoch_ || srv.response.map_epoch != epoch_) {
+    changeEpoch(srv.response.map_epoch, "the connection");
+  }
+  // Uploads sent before are not answered by a restarted server.
+  for (auto& p : pending_) free_images_.push_back(std::move(p.gray));
+  pending_.clear();
+  held_upload_.reset();
+  releaseFrameDone(true);
+  connected_ = true;
+  reset_next_ = true;
+  last_progress_ = ros::WallTime::now();
+  uploaded_since_progress_ = false;
+  ROS_INFO("%s: connected (%s), map epoch %u, uploading on %s", config_.device_id.c_str(),
+           srv.response.message.c_str(), epoch_, upload_topic_.c_str());
+}
+
+}  // namespace ecar_device

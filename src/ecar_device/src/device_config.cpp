@@ -1,0 +1,192 @@
+// DeviceConfig: read from rosparam in one place, validated.
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+
+#include "ecar_core/error.h"
+#include "ecar_device/device.h"
+
+namespace ecar_device {
+namespace {
+
+bool isDeviceName(const std::string& name) {
+  if (name.empty() || !std::isalpha(static_cast<unsigned char>(name[0]))) return false;
+  return std::all_of(name.begin(), name.end(), [](char c) {
+    return std::isalnum(static_cast<unsigned char>(c)) || c == '_';
+  });
+}
+
+/// Reads the members of one struct of parameters; remembers which it used.
+class ParamReader {
+ public:
+  ParamReader(const XmlRpc::XmlRpcValue& params, const std::string& prefix)
+      : params_(params), prefix_(prefix) {}
+
+  void read(const std::string& key, std::string* value) {
+    if (const XmlRpc::XmlRpcValue* v = find(key)) {
+      if (v->getType() != XmlRpc::XmlRpcValue::TypeString) fail(key, "a string");
+      *value = static_cast<std::string>(*v);
+    }
+  }
+  void read(const std::string& key, bool* value) {
+    if (const XmlRpc::XmlRpcValue* v = find(key)) {
+      if (v->getType() != XmlRpc::XmlRpcValue::TypeBoolean) fail(key, "a bool");
+      *value = static_cast<bool>(*v);
+    }
+  }
+  void read(const std::string& key, int* value) {
+    if (const XmlRpc::XmlRpcValue* v = find(key)) {
+      if (v->getType() != XmlRpc::XmlRpcValue::TypeInt) fail(key, "an integer");
+      *value = static_cast<int>(*v);
+    }
+  }
+  void read(const std::string& key, double* value) {
+    if (const XmlRpc::XmlRpcValue* v = find(key)) {
+      if (v->getType() == XmlRpc::XmlRpcValue::TypeInt) {
+        *value = static_cast<int>(*v);
+      } else if (v->getType() == XmlRpc::XmlRpcValue::TypeDouble) {
+        *value = static_cast<double>(*v);
+      } else {
+        fail(key, "a number");
+      }
+    }
+  }
+  void read(const std::string& key, float* value) {
+    double d = *value;
+    read(key, &d);
+    *value = static_cast<float>(d);
+  }
+  /// A nested struct of parameters (e.g. "tracking").
+  ParamReader child(const std::string& key) {
+    used_.push_back(key);
+    if (params_.getType() == XmlRpc::XmlRpcValue::TypeStruct && params_.hasMember(key)) {
+      const XmlRpc::XmlRpcValue& v = params_[key];
+      if (v.getType() != XmlRpc::XmlRpcValue::TypeStruct) fail(key, "a map of parameters");
+      return ParamReader(v, prefix_ + key + "/");
+    }
+    return ParamReader(XmlRpc::XmlRpcValue(), prefix_ + key + "/");
+  }
+  /// Members not read (misspelt or unknown parameters).
+  std::vector<std::string> unknown() const {
+    std::vector<std::string> out;
+    if (params_.getType() != XmlRpc::XmlRpcValue::TypeStruct) return out;
+    for (auto it = params_.begin(); it != params_.end(); ++it) {
+      if (std::find(used_.begin(), used_.end(), it->first) == used_.end()) {
+        out.push_back(prefix_ + it->first);
+      }
+    }
+    return out;
+  }
+
+ private:
+  const XmlRpc::XmlRpcValue* find(const std::string& key) {
+    used_.push_back(key);
+    if (params_.getType() != XmlRpc::XmlRpcValue::TypeStruct || !params_.hasMember(key)) {
+      return nullptr;
+    }
+    return &params_[key];
+  }
+  [[noreturn]] void fail(const std::string& key, const std::string& type) const {
+    throw ecar::Error("~" + prefix_ + key + ": expected " + type);
+  }
+
+  XmlRpc::XmlRpcValue params_;
+  std::string prefix_;
+  std::vector<std::string> used_;
+};
+
+}  // namespace
+
+void DeviceConfig::validate() const {
+  auto fail = [](const std::string& key, const std::string& why) {
+    throw ecar::Error("~" + key + ": " + why);
+  };
+  if (!isDeviceName(device_id)) {
+    fail("device_id",
+         "\"" + device_id + "\" is not a device name (a letter, then letters, digits, _)");
+  }
+  if (every < 1) fail("every", "must be >= 1");
+  if (jpeg_quality < 1 || jpeg_quality > 100) fail("jpeg_quality", "must be in [1, 100]");
+  if (!sync_mode.empty() && sync_mode != "ecar" && sync_mode != "edgeslam") {
+    fail("sync_mode", "must be \"\", \"ecar\" or \"edgeslam\", got \"" + sync_mode + "\"");
+  }
+  if (max_pending < 1) fail("max_pending", "must be >= 1");
+  if (!std::isfinite(connect_period) || connect_period <= 0.0)
+    fail("connect_period", "must be > 0 s");
+  if (!std::isfinite(reconnect_timeout) || reconnect_timeout <= 0.0) {
+    fail("reconnect_timeout", "must be > 0 s");
+  }
+  if (pace_in_flight < 0) fail("pace_in_flight", "must be >= 0 (0 = no pacing)");
+  if (!std::isfinite(pace_timeout) || pace_timeout <= 0.0) fail("pace_timeout", "must be > 0 s");
+  if (map_frame.empty() || map_frame.front() == '/') {
+    fail("map_frame", "must be a non-empty frame id without a leading slash");
+  }
+  if (connect_service.empty()) fail("connect_service", "must not be empty");
+  if (global_metrics_topic.empty()) fail("global_metrics_topic", "must not be empty");
+  try {
+    tracker.validate();
+  } catch (const ecar::Error& e) {
+    const std::string what = e.what();
+    // The core names its keys without the ROS prefix.
+    if (what.rfind("keyframe_queue", 0) == 0 || what.rfind("orb.", 0) == 0) {
+      std::string key = what;
+      std::replace(key.begin(), key.begin() + std::min(key.find(':'), key.size()), '.', '/');
+      throw ecar::Error("~" + key);
+    }
+    throw ecar::Error("~tracking/" + what);
+  }
+}
+
+DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::string& ns,
+                               std::vector<std::string>* unknown) {
+  DeviceConfig c;
+  c.device_id = ns;
+  c.device_id.erase(0, c.device_id.find_first_not_of('/'));
+  ParamReader r(params, "");
+  r.read("device_id", &c.device_id);
+  r.read("every", &c.every);
+  r.read("jpeg_quality", &c.jpeg_quality);
+  r.read("sync_mode", &c.sync_mode);
+  r.read("max_pending", &c.max_pending);
+  r.read("connect_period", &c.connect_period);
+  r.read("reconnect_timeout", &c.reconnect_timeout);
+  r.read("pace_in_flight", &c.pace_in_flight);
+  r.read("pace_timeout", &c.pace_timeout);
+  r.read("map_frame", &c.map_frame);
+  r.read("publish_tf", &c.publish_tf);
+  r.read("connect_service", &c.connect_service);
+  r.read("global_metrics_topic", &c.global_metrics_topic);
+  r.read("keyframe_queue", &c.tracker.keyframe_queue);
+  ParamReader t = r.child("tracking");
+  t.read("projection_radius", &c.tracker.projection_radius);
+  t.read("keyframe_radius", &c.tracker.keyframe_radius);
+  t.read("refine_radius", &c.tracker.refine_radius);
+  t.read("min_matches", &c.tracker.min_matches);
+  t.read("min_inliers", &c.tracker.min_inliers);
+  ParamReader o = r.child("orb");
+  o.read("num_features", &c.tracker.orb.num_features);
+  o.read("scale_factor", &c.tracker.orb.scale_factor);
+  o.read("num_levels", &c.tracker.orb.num_levels);
+  o.read("fast_threshold", &c.tracker.orb.fast_threshold);
+  o.read("min_fast_threshold", &c.tracker.orb.min_fast_threshold);
+  if (unknown) {
+    *unknown = r.unknown();
+    for (const auto& k : t.unknown()) unknown->push_back(k);
+    for (const auto& k : o.unknown()) unknown->push_back(k);
+  }
+  c.validate();
+  return c;
+}
+
+DeviceConfig loadDeviceConfig(const ros::NodeHandle& pnh, const std::string& ns) {
+  XmlRpc::XmlRpcValue params;
+  if (!ros::param::get(pnh.getNamespace(), params)) params = XmlRpc::XmlRpcValue();
+  std::vector<std::string> unknown;
+  DeviceConfig c = parseDeviceConfig(params, ns, &unknown);
+  for (const auto& k : unknown) {
+    ROS_WARN("%s: unknown parameter ~%s (ignored)", c.device_id.c_str(), k.c_str());
+  }
+  return c;
+}
+
+}  // namespace ecar_device

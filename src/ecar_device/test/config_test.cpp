@@ -1,0 +1,103 @@
+// The device's parameters: defaults, config/device.yaml (every key known, the
+// documented values are the defaults), and errors naming the parameter.
+#include <string>
+
+#include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
+
+#include "ecar_core/error.h"
+#include "ecar_device/device.h"
+
+namespace ecar_device {
+namespace {
+
+/// YAML scalars and maps as rosparam would hold them.
+XmlRpc::XmlRpcValue toXmlRpc(const YAML::Node& node) {
+  if (node.IsMap()) {
+    XmlRpc::XmlRpcValue v;
+    for (const auto& kv : node) v[kv.first.as<std::string>()] = toXmlRpc(kv.second);
+    return v;
+  }
+  const std::string s = node.as<std::string>();
+  if (node.Tag() == "!" || s.empty()) return XmlRpc::XmlRpcValue(s);  // quoted string
+  if (s == "true" || s == "false") return XmlRpc::XmlRpcValue(s == "true");
+  try {
+    size_t used = 0;
+    const int i = std::stoi(s, &used);
+    if (used == s.size()) return XmlRpc::XmlRpcValue(i);
+    const double d = std::stod(s, &used);
+    if (used == s.size()) return XmlRpc::XmlRpcValue(d);
+  } catch (const std::exception&) {
+  }
+  return XmlRpc::XmlRpcValue(s);
+}
+
+std::string errorOf(const XmlRpc::XmlRpcValue& params) {
+  try {
+    parseDeviceConfig(params, "/device_0", nullptr);
+  } catch (const ecar::Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(DeviceConfigTest, DefaultsComeFromTheNamespace) {
+  const DeviceConfig c = parseDeviceConfig(XmlRpc::XmlRpcValue(), "/device_7", nullptr);
+  EXPECT_EQ(c.device_id, "device_7");
+  EXPECT_EQ(c.every, 4);
+  EXPECT_EQ(c.jpeg_quality, 70);
+  EXPECT_EQ(c.tracker.keyframe_queue, 10);
+  EXPECT_THROW(parseDeviceConfig(XmlRpc::XmlRpcValue(), "/", nullptr), ecar::Error);
+}
+
+TEST(DeviceConfigTest, ShippedYamlHasOnlyKnownKeysWithTheDefaults) {
+  const YAML::Node yaml = YAML::LoadFile(ECAR_REPO_ROOT "/config/device.yaml");
+  std::vector<std::string> unknown;
+  const DeviceConfig c = parseDeviceConfig(toXmlRpc(yaml), "/device_0", &unknown);
+  EXPECT_TRUE(unknown.empty()) << unknown.front();
+  const DeviceConfig d = parseDeviceConfig(XmlRpc::XmlRpcValue(), "/device_0", nullptr);
+  EXPECT_EQ(c.every, d.every);
+  EXPECT_EQ(c.jpeg_quality, d.jpeg_quality);
+  EXPECT_EQ(c.sync_mode, d.sync_mode);
+  EXPECT_EQ(c.max_pending, d.max_pending);
+  EXPECT_DOUBLE_EQ(c.reconnect_timeout, d.reconnect_timeout);
+  EXPECT_DOUBLE_EQ(c.connect_period, d.connect_period);
+  EXPECT_EQ(c.pace_in_flight, d.pace_in_flight);
+  EXPECT_DOUBLE_EQ(c.pace_timeout, d.pace_timeout);
+  EXPECT_EQ(c.tracker.keyframe_queue, d.tracker.keyframe_queue);
+  EXPECT_DOUBLE_EQ(c.tracker.projection_radius, d.tracker.projection_radius);
+  EXPECT_DOUBLE_EQ(c.tracker.keyframe_radius, d.tracker.keyframe_radius);
+  EXPECT_DOUBLE_EQ(c.tracker.refine_radius, d.tracker.refine_radius);
+  EXPECT_EQ(c.tracker.min_matches, d.tracker.min_matches);
+  EXPECT_EQ(c.tracker.min_inliers, d.tracker.min_inliers);
+  EXPECT_EQ(c.tracker.orb.num_features, d.tracker.orb.num_features);
+  EXPECT_FLOAT_EQ(c.tracker.orb.scale_factor, d.tracker.orb.scale_factor);
+  EXPECT_EQ(c.tracker.orb.num_levels, d.tracker.orb.num_levels);
+}
+
+TEST(DeviceConfigTest, BadValuesNameTheParameter) {
+  XmlRpc::XmlRpcValue p;
+  p["every"] = 0;
+  EXPECT_NE(errorOf(p).find("~every"), std::string::npos);
+  p = XmlRpc::XmlRpcValue();
+  p["jpeg_quality"] = 1.5;
+  EXPECT_NE(errorOf(p).find("~jpeg_quality"), std::string::npos);
+  p = XmlRpc::XmlRpcValue();
+  p["sync_mode"] = std::string("full");
+  EXPECT_NE(errorOf(p).find("~sync_mode"), std::string::npos);
+  p = XmlRpc::XmlRpcValue();
+  p["keyframe_queue"] = 0;
+  EXPECT_NE(errorOf(p).find("~keyframe_queue"), std::string::npos);
+  p = XmlRpc::XmlRpcValue();
+  p["tracking"]["min_inliers"] = 2;
+  EXPECT_NE(errorOf(p).find("~tracking/min_inliers"), std::string::npos) << errorOf(p);
+  p = XmlRpc::XmlRpcValue();
+  p["orb"]["num_levels"] = 0;
+  EXPECT_NE(errorOf(p).find("~orb/num_levels"), std::string::npos) << errorOf(p);
+  p = XmlRpc::XmlRpcValue();
+  p["pace_timeout"] = -1.0;
+  EXPECT_NE(errorOf(p).find("~pace_timeout"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace ecar_device
