@@ -1,6 +1,7 @@
 #include "ecar_core/local_graph.h"
 
 #include <algorithm>
+#include <cmath>
 #include <unordered_set>
 
 #include "ecar_core/error.h"
@@ -23,14 +24,19 @@ void DeviceMirror::reset() {
   held_.clear();
 }
 
-bool DeviceMirror::holds(MapPointId id, uint32_t* version) const {
+bool DeviceMirror::holds(MapPointId id, uint32_t* version, Eigen::Vector3f* p_w) const {
   const auto it = held_.find(id);
   if (it == held_.end()) return false;
   if (version) *version = it->second.version;
+  if (p_w) *p_w = it->second.p_w;
   return true;
 }
 
-void DeviceMirror::setHeld(MapPointId id, uint32_t version) { held_[id].version = version; }
+void DeviceMirror::setHeld(MapPointId id, uint32_t version, const Eigen::Vector3f& p_w) {
+  Held& h = held_[id];
+  h.version = version;
+  h.p_w = p_w;
+}
 
 void DeviceMirror::pushKeyFrame(const std::vector<MapPointId>& points) {
   std::vector<MapPointId> kept;
@@ -77,6 +83,9 @@ void LocalGraphBuilder::buildEcar(const Map& map, const TrackResult& result, Dev
   ids.reserve(result.tracked.size());
   std::unordered_set<MapPointId> seen;
   seen.reserve(result.tracked.size() * 2);
+  const float tolerance2 = static_cast<float>(config_.position_tolerance *
+                                              config_.position_tolerance);
+  const Eigen::Vector3f center = result.T_w_c.translation().cast<float>();
   auto lock = map.readLock();
   for (const TrackedPoint& t : result.tracked) {
     const MapPoint* p = map.point(t.id);
@@ -90,12 +99,30 @@ void LocalGraphBuilder::buildEcar(const Map& map, const TrackResult& result, Dev
     out->points.push_back(g);
     ids.push_back(t.id);
     uint32_t held_version = 0;
-    if (!mirror->holds(t.id, &held_version) || held_version != p->version) {
-      out->positions.push_back({t.id, p->p_w.cast<float>()});
-      mirror->setHeld(t.id, p->version);
+    Eigen::Vector3f held_p_w;
+    const Eigen::Vector3f p_w = p->p_w.cast<float>();
+    if (!mirror->holds(t.id, &held_version, &held_p_w) ||
+        (held_version != p->version && (p_w - held_p_w).squaredNorm() > tolerance2 &&
+         movedInView(held_p_w, p_w, center))) {
+      out->positions.push_back({t.id, p_w});
+      mirror->setHeld(t.id, p->version, p_w);
     }
   }
   mirror->pushKeyFrame(ids);
+}
+
+bool LocalGraphBuilder::movedInView(const Eigen::Vector3f& held, const Eigen::Vector3f& now,
+                                    const Eigen::Vector3f& center) const {
+  if (config_.position_tolerance_deg <= 0.0 || config_.position_tolerance_depth <= 0.0) return true;
+  const Eigen::Vector3f ray = now - center;
+  const float dist = ray.norm();
+  if (!(dist > 1e-6f)) return true;
+  const Eigen::Vector3f move = now - held;
+  const float along = move.dot(ray) / dist;
+  const float across = std::sqrt(std::max(0.0f, move.squaredNorm() - along * along));
+  const double angle_deg = std::atan2(across, dist) * 180.0 / M_PI;
+  return angle_deg > config_.position_tolerance_deg ||
+         std::abs(along) > config_.position_tolerance_depth * dist;
 }
 
 void LocalGraphBuilder::buildEdgeSlam(const Map& map, const TrackResult& result,

@@ -115,6 +115,48 @@ TEST_F(LocalGraphTest, PositionsAreSentAgainAfterAVersionChange) {
   EXPECT_FLOAT_EQ(g.positions[0].p_w.z(), 3.5f);
   // Sent once: the next graph does not repeat it.
   EXPECT_TRUE(builder.build(map, trackedResult(0, 20), SyncMode::kEcar, &mirror).positions.empty());
+  // A new version that moved less than the tolerance (1 mm) is not resent.
+  {
+    auto lock = map.writeLock();
+    MapPoint* p = map.mutablePoint(points[7]);
+    p->p_w.z() += 0.0004;
+    ++p->version;
+  }
+  EXPECT_TRUE(builder.build(map, trackedResult(0, 20), SyncMode::kEcar, &mirror).positions.empty());
+  LocalGraphConfig exact;
+  exact.position_tolerance = 0.0;
+  DeviceMirror mirror2(10);
+  const LocalGraphBuilder strict(exact);
+  strict.build(map, trackedResult(0, 20), SyncMode::kEcar, &mirror2);
+  {
+    auto lock = map.writeLock();
+    MapPoint* p = map.mutablePoint(points[7]);
+    p->p_w.z() += 0.0004;
+    ++p->version;
+  }
+  EXPECT_EQ(strict.build(map, trackedResult(0, 20), SyncMode::kEcar, &mirror2).positions.size(), 1u);
+}
+
+TEST_F(LocalGraphTest, DepthMovesWithinTheViewTolerancesAreNotResent) {
+  LocalGraphConfig config;
+  config.position_tolerance_deg = 0.05;
+  config.position_tolerance_depth = 0.02;
+  const LocalGraphBuilder viewed(config);
+  DeviceMirror mirror(10);
+  viewed.build(map, trackedResult(0, 20), SyncMode::kEcar, &mirror);  // camera at the origin
+  const auto move = [&](int i, const Eigen::Vector3d& d) {
+    auto lock = map.writeLock();
+    MapPoint* p = map.mutablePoint(points[i]);
+    p->p_w += d;
+    ++p->version;
+  };
+  const Eigen::Vector3d ray0 = Eigen::Vector3d(0.0, 0.2, 3.0).normalized();  // point 0
+  move(0, 0.03 * ray0);                           // 1% of 3 m in depth: kept
+  move(1, Eigen::Vector3d(0.01, 0.0, 0.0));       // 1 cm across at 3 m: 0.19 deg, resent
+  const Eigen::Vector3d ray2 = Eigen::Vector3d(0.2, 0.2, 3.0).normalized();
+  move(2, 0.09 * ray2);                           // 3% in depth: resent
+  const auto g = viewed.build(map, trackedResult(0, 20), SyncMode::kEcar, &mirror);
+  EXPECT_EQ(positionIds(g), (std::vector<MapPointId>{points[1], points[2]}));
 }
 
 TEST_F(LocalGraphTest, PositionsAreSentAgainOnceThePointLeftTheQueue) {

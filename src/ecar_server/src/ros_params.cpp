@@ -41,6 +41,9 @@ ServerConfig loadServerConfig(const ros::NodeHandle& nh) {
   read(nh, "graph_queue_size", &c.graph_queue_size);
   read(nh, "keyframe_queue", &c.keyframe_queue);
   read(nh, "marker_rate", &c.marker_rate);
+  read(nh, "position_tolerance", &c.position_tolerance);
+  read(nh, "position_tolerance_deg", &c.position_tolerance_deg);
+  read(nh, "position_tolerance_depth", &c.position_tolerance_depth);
   read(nh, "edgeslam_keyframes", &c.edgeslam_keyframes);
   read(nh, "orb_features", &c.orb_features);
   read(nh, "local_keyframes", &c.local_keyframes);

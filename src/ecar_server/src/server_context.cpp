@@ -40,6 +40,15 @@ void ServerConfig::validate() const {
   if (graph_queue_size < 1) fail("graph_queue_size", "must be >= 1");
   if (keyframe_queue < 1) fail("keyframe_queue", "must be >= 1");
   if (!(marker_rate >= 0.0) || marker_rate > 100.0) fail("marker_rate", "must be in [0, 100] Hz");
+  if (!(position_tolerance >= 0.0) || position_tolerance > 0.1) {
+    fail("position_tolerance", "must be in [0, 0.1] m");
+  }
+  if (!(position_tolerance_deg >= 0.0) || position_tolerance_deg > 10.0) {
+    fail("position_tolerance_deg", "must be in [0, 10] degrees");
+  }
+  if (!(position_tolerance_depth >= 0.0) || position_tolerance_depth > 1.0) {
+    fail("position_tolerance_depth", "must be in [0, 1]");
+  }
   if (edgeslam_keyframes < 0) fail("edgeslam_keyframes", "must be >= 0");
   if (orb_features < 100 || orb_features > 100000) fail("orb_features", "must be in [100, 100000]");
   if (local_keyframes < 2) fail("local_keyframes", "must be >= 2");
@@ -57,6 +66,9 @@ ecar::SlamConfig ServerConfig::slamConfig() const {
 ecar::LocalGraphConfig ServerConfig::localGraphConfig() const {
   ecar::LocalGraphConfig c;
   c.edgeslam_keyframes = edgeslam_keyframes;
+  c.position_tolerance = position_tolerance;
+  c.position_tolerance_deg = position_tolerance_deg;
+  c.position_tolerance_depth = position_tolerance_depth;
   return c;
 }
 

@@ -7,7 +7,12 @@
 //
 // ecar mode: every point tracked in the image (id, keypoint, angle, octave)
 // and positions only for points the device does not hold, or holds at an
-// older version. The server cannot see the device's map, so it mirrors it:
+// older version whose position moved noticeably since it was sent: by more
+// than position_tolerance, and (when the view tolerances are set) by more than
+// an angle seen from the aligned camera or a fraction of its distance along
+// the ray. Local bundle adjustment moves most local points at each keyframe,
+// mostly in depth (centimetres at 4 m, under half a pixel in the image);
+// resending all of those would resend nearly every point. The server cannot see the device's map, so it mirrors it:
 // each graph with a tracked pose is one keyframe on the device holding all
 // its points; the device keeps the last `queue_length` such keyframes; a point
 // leaves the device when no queued keyframe holds it any more.
@@ -89,10 +94,12 @@ class DeviceMirror {
 
   /// Forgets everything (the device reset or reconnected): all positions are sent again.
   void reset();
-  /// Whether the device holds `id`; `version` receives the held version.
-  bool holds(MapPointId id, uint32_t* version = nullptr) const;
-  /// Records that the device now holds `id` at `version` (its position was sent).
-  void setHeld(MapPointId id, uint32_t version);
+  /// Whether the device holds `id`; `version` and `p_w` receive the version
+  /// and position it holds.
+  bool holds(MapPointId id, uint32_t* version = nullptr, Eigen::Vector3f* p_w = nullptr) const;
+  /// Records that the device now holds `id` at `version`, position `p_w` (it was sent).
+  void setHeld(MapPointId id, uint32_t version,
+               const Eigen::Vector3f& p_w = Eigen::Vector3f::Zero());
   /// One keyframe on the device holding `points`; evicts the oldest keyframe
   /// beyond the queue length, and with it the points no queued keyframe holds.
   /// Every point must have been recorded with setHeld() (others are ignored).
@@ -104,6 +111,7 @@ class DeviceMirror {
 
  private:
   struct Held {
+    Eigen::Vector3f p_w = Eigen::Vector3f::Zero();
     uint32_t version = 0;
     int keyframes = 0;  ///< queued keyframes holding the point
   };
@@ -113,6 +121,15 @@ class DeviceMirror {
 };
 
 struct LocalGraphConfig {
+  /// ecar: a held point whose version changed is sent again only when it
+  /// moved more than this (metres) from the position the device holds; 0 =
+  /// on every version change.
+  double position_tolerance = 0.001;
+  /// ecar: besides, a moved point is resent only when the move, seen from the
+  /// aligned camera, exceeds this angle (degrees, across the ray) or this
+  /// fraction of its distance (along the ray). Either <= 0: no view test.
+  double position_tolerance_deg = 0.0;
+  double position_tolerance_depth = 0.0;
   /// edgeslam: at most this many local keyframes (the best ones first); 0 = all.
   int edgeslam_keyframes = 10;
 };
@@ -135,6 +152,10 @@ class LocalGraphBuilder {
   void buildEcar(const Map& map, const TrackResult& result, DeviceMirror* mirror,
                  LocalGraphData* out) const;
   void buildEdgeSlam(const Map& map, const TrackResult& result, LocalGraphData* out) const;
+  /// Whether a held point's move from `held` to `now` is visible from a
+  /// camera at `center` (the view tolerances; true when they are off).
+  bool movedInView(const Eigen::Vector3f& held, const Eigen::Vector3f& now,
+                   const Eigen::Vector3f& center) const;
 
   LocalGraphConfig config_;
 };

@@ -29,6 +29,13 @@ struct ServerConfig {
   int keyframe_queue = 10;
   /// /ecar/markers rate (Hz); 0 disables the markers (tf is still published).
   double marker_rate = 1.0;
+  /// ecar mode: a held point is resent when its position moved more than this (m).
+  double position_tolerance = 0.001;
+  /// ecar mode: and only when the move seen from the aligned camera exceeds
+  /// this angle (deg) across the ray or this fraction of the distance along it
+  /// (either 0: no view test).
+  double position_tolerance_deg = 0.05;
+  double position_tolerance_depth = 0.02;
   /// edgeslam mode: local keyframes sent (the best first); 0 = all of them.
   int edgeslam_keyframes = 10;
   /// ORB keypoints per uploaded image.
