@@ -83,8 +83,8 @@ void LocalGraphBuilder::buildEcar(const Map& map, const TrackResult& result, Dev
   ids.reserve(result.tracked.size());
   std::unordered_set<MapPointId> seen;
   seen.reserve(result.tracked.size() * 2);
-  const float tolerance2 = static_cast<float>(config_.position_tolerance *
-                                              config_.position_tolerance);
+  const float tolerance2 =
+      static_cast<float>(config_.position_tolerance * config_.position_tolerance);
   const Eigen::Vector3f center = result.T_w_c.translation().cast<float>();
   auto lock = map.readLock();
   for (const TrackedPoint& t : result.tracked) {

@@ -134,7 +134,8 @@ TEST_F(LocalGraphTest, PositionsAreSentAgainAfterAVersionChange) {
     p->p_w.z() += 0.0004;
     ++p->version;
   }
-  EXPECT_EQ(strict.build(map, trackedResult(0, 20), SyncMode::kEcar, &mirror2).positions.size(), 1u);
+  EXPECT_EQ(strict.build(map, trackedResult(0, 20), SyncMode::kEcar, &mirror2).positions.size(),
+            1u);
 }
 
 TEST_F(LocalGraphTest, DepthMovesWithinTheViewTolerancesAreNotResent) {
@@ -151,10 +152,10 @@ TEST_F(LocalGraphTest, DepthMovesWithinTheViewTolerancesAreNotResent) {
     ++p->version;
   };
   const Eigen::Vector3d ray0 = Eigen::Vector3d(0.0, 0.2, 3.0).normalized();  // point 0
-  move(0, 0.03 * ray0);                           // 1% of 3 m in depth: kept
-  move(1, Eigen::Vector3d(0.01, 0.0, 0.0));       // 1 cm across at 3 m: 0.19 deg, resent
+  move(0, 0.03 * ray0);                      // 1% of 3 m in depth: kept
+  move(1, Eigen::Vector3d(0.01, 0.0, 0.0));  // 1 cm across at 3 m: 0.19 deg, resent
   const Eigen::Vector3d ray2 = Eigen::Vector3d(0.2, 0.2, 3.0).normalized();
-  move(2, 0.09 * ray2);                           // 3% in depth: resent
+  move(2, 0.09 * ray2);  // 3% in depth: resent
   const auto g = viewed.build(map, trackedResult(0, 20), SyncMode::kEcar, &mirror);
   EXPECT_EQ(positionIds(g), (std::vector<MapPointId>{points[1], points[2]}));
 }
@@ -220,8 +221,8 @@ TEST_F(LocalGraphTest, EdgeSlamCarriesTheWholeLocalMap) {
   }
   // The default keeps the first 10 local keyframes; here 2 of them.
   config.edgeslam_keyframes = 2;
-  const auto g2 = LocalGraphBuilder(config).build(map, trackedResult(0, 20), SyncMode::kEdgeSlam,
-                                                  nullptr);
+  const auto g2 =
+      LocalGraphBuilder(config).build(map, trackedResult(0, 20), SyncMode::kEdgeSlam, nullptr);
   EXPECT_EQ(g2.keyframes.size(), 2u);
   EXPECT_EQ(g2.map_points.size(), 25u);
 }
@@ -247,8 +248,8 @@ TEST_F(LocalGraphTest, EcarPayloadPerPointIsSmall) {
   }
   EXPECT_LE(static_cast<double>(total) / tracked, 20.0);
   const auto edge = builder.build(map, trackedResult(0, 20), SyncMode::kEdgeSlam, nullptr);
-  EXPECT_GE(bytes(edge), 6 * bytes(builder.build(map, trackedResult(0, 20), SyncMode::kEcar,
-                                                 &mirror)));
+  EXPECT_GE(bytes(edge),
+            6 * bytes(builder.build(map, trackedResult(0, 20), SyncMode::kEcar, &mirror)));
 }
 
 TEST(SyncModeTest, ParsesAndPrints) {

@@ -246,9 +246,9 @@ cv::Mat decodeImage(const ecar_msgs::Upload& upload) {
   if (data.empty()) throw ecar::Error("image is empty");
   cv::Mat image;
   try {
-    image = cv::imdecode(cv::Mat(1, static_cast<int>(data.size()), CV_8U,
-                                 const_cast<uint8_t*>(data.data())),
-                         cv::IMREAD_GRAYSCALE);
+    image = cv::imdecode(
+        cv::Mat(1, static_cast<int>(data.size()), CV_8U, const_cast<uint8_t*>(data.data())),
+        cv::IMREAD_GRAYSCALE);
   } catch (const cv::Exception&) {
     image.release();
   }

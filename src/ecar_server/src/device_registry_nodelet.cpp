@@ -6,8 +6,8 @@
 #include <ecar_msgs/Connect.h>
 #include <ecar_msgs/Disconnect.h>
 #include <nodelet/nodelet.h>
-#include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
+#include <pluginlib/class_list_macros.hpp>
 
 #include "ecar_core/error.h"
 #include "ecar_server/ros_params.h"

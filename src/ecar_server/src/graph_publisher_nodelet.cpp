@@ -5,12 +5,12 @@
 #include <memory>
 #include <mutex>
 
-#include <boost/make_shared.hpp>
 #include <ecar_msgs/LocalGraph.h>
 #include <ecar_msgs/TrackedFrame.h>
 #include <nodelet/nodelet.h>
-#include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
+#include <boost/make_shared.hpp>
+#include <pluginlib/class_list_macros.hpp>
 
 #include "ecar_core/error.h"
 #include "ecar_core/local_graph.h"
@@ -29,7 +29,8 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
 
   void onDeviceAdded(const DeviceInfo& device) override {
     ros::Publisher pub = getMTNodeHandle().advertise<ecar_msgs::LocalGraph>(
-        DeviceTopicNames{device.name}.localGraph(), static_cast<uint32_t>(config_.graph_queue_size));
+        DeviceTopicNames{device.name}.localGraph(),
+        static_cast<uint32_t>(config_.graph_queue_size));
     std::lock_guard<std::mutex> lock(mutex_);
     publishers_[device.name] = pub;
   }
@@ -56,8 +57,8 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
     try {
       result = fromMsg(*msg);
     } catch (const ecar::Error& e) {
-      NODELET_WARN_THROTTLE(2.0, "device %s: tracked frame %u: %s: dropped",
-                            msg->device_id.c_str(), msg->frame_index, e.what());
+      NODELET_WARN_THROTTLE(2.0, "device %s: tracked frame %u: %s: dropped", msg->device_id.c_str(),
+                            msg->frame_index, e.what());
       return;
     }
     const std::optional<DeviceInfo> info = ctx_->device(msg->device_id);
@@ -82,7 +83,8 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
     graph->status = msg->status;
     graph->pose = msg->pose;
     graph->map_epoch = ctx_->mapEpoch();
-    fillPayload(data, [this](ecar::DeviceId id) { return ctx_->deviceName(id); }, graph.get());
+    fillPayload(
+        data, [this](ecar::DeviceId id) { return ctx_->deviceName(id); }, graph.get());
     graph->upload_sent = msg->upload_sent;
     graph->server_received = msg->server_received;
     graph->tracking_time = msg->tracking_time;

@@ -4,11 +4,11 @@
 #include <memory>
 #include <mutex>
 
-#include <boost/make_shared.hpp>
 #include <ecar_msgs/KeyFrameEvent.h>
 #include <nodelet/nodelet.h>
-#include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
+#include <boost/make_shared.hpp>
+#include <pluginlib/class_list_macros.hpp>
 
 #include "ecar_server/conversions.h"
 #include "ecar_server/ros_params.h"

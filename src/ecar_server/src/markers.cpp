@@ -15,8 +15,8 @@ geometry_msgs::Point toPoint(const Eigen::Vector3d& p) {
   return m;
 }
 
-visualization_msgs::Marker marker(const std::string& ns, int id, int type,
-                                  const std::string& frame, const ros::Time& stamp) {
+visualization_msgs::Marker marker(const std::string& ns, int id, int type, const std::string& frame,
+                                  const ros::Time& stamp) {
   visualization_msgs::Marker m;
   m.header.frame_id = frame;
   m.header.stamp = stamp;

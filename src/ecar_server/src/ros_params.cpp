@@ -53,8 +53,7 @@ ServerConfig loadServerConfig(const ros::NodeHandle& nh) {
 }
 
 double steadySeconds() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch())
-      .count();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
 }  // namespace ecar_server

@@ -130,8 +130,8 @@ ConnectResult ServerContext::connect(const std::string& name, const ecar::Pinhol
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (!validDeviceName(name)) {
-      result.message = "device_id '" + name +
-                       "' is not a valid name (a letter, then letters, digits or '_')";
+      result.message =
+          "device_id '" + name + "' is not a valid name (a letter, then letters, digits or '_')";
       return result;
     }
     ecar::SyncMode mode = config_.syncMode();
@@ -174,8 +174,8 @@ ConnectResult ServerContext::connect(const std::string& name, const ecar::Pinhol
       devices_.emplace(name, std::move(slot));
     }
     result.accepted = true;
-    result.message = std::string(result.reconnected ? "reconnected" : "connected") + " as " +
-                     name + " (sync_mode " + ecar::toString(mode) + ", keyframe queue " +
+    result.message = std::string(result.reconnected ? "reconnected" : "connected") + " as " + name +
+                     " (sync_mode " + ecar::toString(mode) + ", keyframe queue " +
                      std::to_string(queue) + ")";
   }
   if (created) {

@@ -7,12 +7,12 @@
 #include <memory>
 #include <mutex>
 
-#include <boost/make_shared.hpp>
 #include <ecar_msgs/TrackedFrame.h>
 #include <ecar_msgs/Upload.h>
 #include <nodelet/nodelet.h>
-#include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
+#include <boost/make_shared.hpp>
+#include <pluginlib/class_list_macros.hpp>
 
 #include "ecar_core/error.h"
 #include "ecar_server/conversions.h"
@@ -43,8 +43,8 @@ class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
     const boost::function<void(const ecar_msgs::Upload::ConstPtr&)> callback =
         [this, name](const ecar_msgs::Upload::ConstPtr& msg) { onUpload(name, msg); };
     ros::Subscriber sub = getMTNodeHandle().subscribe<ecar_msgs::Upload>(
-        DeviceTopicNames{name}.upload(), static_cast<uint32_t>(config_.upload_queue_size),
-        callback, ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay());
+        DeviceTopicNames{name}.upload(), static_cast<uint32_t>(config_.upload_queue_size), callback,
+        ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay());
     std::lock_guard<std::mutex> lock(mutex_);
     subscribers_[name] = sub;
   }
@@ -80,14 +80,16 @@ class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
     const ros::Time received = ros::Time::now();
     const uint32_t bytes = ros::serialization::serializationLength(*msg);
     if (bytes > static_cast<uint32_t>(config_.max_upload_bytes)) {
-      NODELET_WARN_THROTTLE(2.0, "device %s: upload of %u bytes (field image) exceeds "
-                                 "max_upload_bytes %d: dropped",
+      NODELET_WARN_THROTTLE(2.0,
+                            "device %s: upload of %u bytes (field image) exceeds "
+                            "max_upload_bytes %d: dropped",
                             device.c_str(), bytes, config_.max_upload_bytes);
       return;
     }
     if (msg->device_id != device) {
-      NODELET_WARN_THROTTLE(2.0, "device %s: upload with device_id '%s' (field device_id) on "
-                                 "%s: dropped",
+      NODELET_WARN_THROTTLE(2.0,
+                            "device %s: upload with device_id '%s' (field device_id) on "
+                            "%s: dropped",
                             device.c_str(), msg->device_id.c_str(),
                             DeviceTopicNames{device}.upload().c_str());
       return;
@@ -106,12 +108,12 @@ class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
                             msg->frame_index, e.what());
       return;
     }
-    const bool dropped = pool_->push(device, [this, device, msg, motion, received] {
-      align(device, msg, motion, received);
-    });
+    const bool dropped = pool_->push(
+        device, [this, device, msg, motion, received] { align(device, msg, motion, received); });
     if (dropped) {
-      NODELET_WARN_THROTTLE(2.0, "device %s: %d uploads wait for alignment "
-                                 "(device_queue_size): dropped the oldest",
+      NODELET_WARN_THROTTLE(2.0,
+                            "device %s: %d uploads wait for alignment "
+                            "(device_queue_size): dropped the oldest",
                             device.c_str(), config_.device_queue_size);
     }
   }
@@ -135,16 +137,16 @@ class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
       return;
     }
     if (image.cols != slam->camera().width() || image.rows != slam->camera().height()) {
-      NODELET_WARN_THROTTLE(2.0, "device %s: upload frame %u: image is %dx%d, not the connected "
-                                 "camera's %dx%d: dropped",
+      NODELET_WARN_THROTTLE(2.0,
+                            "device %s: upload frame %u: image is %dx%d, not the connected "
+                            "camera's %dx%d: dropped",
                             device.c_str(), msg->frame_index, image.cols, image.rows,
                             slam->camera().width(), slam->camera().height());
       return;
     }
     const auto t0 = std::chrono::steady_clock::now();
-    const ecar::TrackResult result =
-        slam->track(info->id, image, msg->header.stamp.toSec(), msg->frame_index,
-                    motion.gravity_c, motion.T_o_c);
+    const ecar::TrackResult result = slam->track(info->id, image, msg->header.stamp.toSec(),
+                                                 msg->frame_index, motion.gravity_c, motion.T_o_c);
     FrameMeta meta;
     meta.device = device;
     meta.frame_index = msg->frame_index;

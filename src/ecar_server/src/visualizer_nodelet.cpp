@@ -4,12 +4,12 @@
 #include <memory>
 #include <mutex>
 
-#include <boost/make_shared.hpp>
 #include <ecar_msgs/TrackedFrame.h>
 #include <nodelet/nodelet.h>
-#include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
 #include <tf2_ros/transform_broadcaster.h>
+#include <boost/make_shared.hpp>
+#include <pluginlib/class_list_macros.hpp>
 
 #include "ecar_core/error.h"
 #include "ecar_server/markers.h"

@@ -5,8 +5,8 @@
 #include <limits>
 
 #include <gtest/gtest.h>
-#include <opencv2/imgcodecs.hpp>
 #include <ros/serialization.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "ecar_core/error.h"
 
@@ -96,7 +96,8 @@ TEST(ConversionsTest, LocalGraphPayloadRoundTrips) {
   d.keyframes.push_back(kf);
   d.map_points.push_back(ecar::GraphMapPoint());
   ecar_msgs::LocalGraph msg;
-  fillPayload(d, [](ecar::DeviceId id) { return "device_" + std::to_string(id.value); }, &msg);
+  fillPayload(
+      d, [](ecar::DeviceId id) { return "device_" + std::to_string(id.value); }, &msg);
   EXPECT_EQ(msg.sync_mode, ecar_msgs::LocalGraph::SYNC_EDGESLAM);
   EXPECT_EQ(msg.keyframes[0].device_id, "device_1");
   const ecar::LocalGraphData d2 = payloadFromMsg(msg);
@@ -116,9 +117,10 @@ TEST(ConversionsTest, TrackedFrameRoundTrips) {
   r.state = ecar::TrackingState::kOk;
   r.relocalised = true;
   r.T_w_c = somePose();
-  r.tracked.push_back(
-      {ecar::MapPointId(11), cv::KeyPoint(20.125f, 30.5f, 31.0f, 180.0f, 0.0f, 2), Eigen::Vector3d::Zero()});
-  r.tracked.push_back({ecar::MapPointId(12), cv::KeyPoint(1.0f, 2.0f, 31.0f, 0.0f, 0.0f, 0), Eigen::Vector3d::Zero()});
+  r.tracked.push_back({ecar::MapPointId(11), cv::KeyPoint(20.125f, 30.5f, 31.0f, 180.0f, 0.0f, 2),
+                       Eigen::Vector3d::Zero()});
+  r.tracked.push_back({ecar::MapPointId(12), cv::KeyPoint(1.0f, 2.0f, 31.0f, 0.0f, 0.0f, 0),
+                       Eigen::Vector3d::Zero()});
   r.local_keyframes = {ecar::KeyFrameId(3), ecar::KeyFrameId(1)};
   r.new_keyframe = ecar::KeyFrameId(3);
   FrameMeta meta;

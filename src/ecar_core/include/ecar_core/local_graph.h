@@ -12,10 +12,10 @@
 // an angle seen from the aligned camera or a fraction of its distance along
 // the ray. Local bundle adjustment moves most local points at each keyframe,
 // mostly in depth (centimetres at 4 m, under half a pixel in the image);
-// resending all of those would resend nearly every point. The server cannot see the device's map, so it mirrors it:
-// each graph with a tracked pose is one keyframe on the device holding all
-// its points; the device keeps the last `queue_length` such keyframes; a point
-// leaves the device when no queued keyframe holds it any more.
+// resending all of those would resend nearly every point. The server cannot see the device's map,
+// so it mirrors it: each graph with a tracked pose is one keyframe on the device holding all its
+// points; the device keeps the last `queue_length` such keyframes; a point leaves the device when
+// no queued keyframe holds it any more.
 //
 // edgeslam mode (the baseline): the aligned frame's local keyframes with
 // their poses and point ids, and every point they observe with position,
@@ -79,9 +79,9 @@ struct GraphMapPoint {
 /// The payload of one local graph (pose and status travel beside it).
 struct LocalGraphData {
   SyncMode mode = SyncMode::kEcar;
-  std::vector<GraphPoint> points;        ///< ecar
-  std::vector<GraphPosition> positions;  ///< ecar
-  std::vector<GraphKeyFrame> keyframes;  ///< edgeslam
+  std::vector<GraphPoint> points;         ///< ecar
+  std::vector<GraphPosition> positions;   ///< ecar
+  std::vector<GraphKeyFrame> keyframes;   ///< edgeslam
   std::vector<GraphMapPoint> map_points;  ///< edgeslam
 };
 

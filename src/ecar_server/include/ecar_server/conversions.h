@@ -8,7 +8,6 @@
 #include <optional>
 #include <string>
 
-#include <Eigen/Core>
 #include <ecar_msgs/KeyFrameEvent.h>
 #include <ecar_msgs/KeyFrameInfo.h>
 #include <ecar_msgs/LocalGraph.h>
@@ -17,8 +16,9 @@
 #include <ecar_msgs/TrackedFrame.h>
 #include <ecar_msgs/TrackedPoint.h>
 #include <ecar_msgs/Upload.h>
-#include <opencv2/core.hpp>
 #include <ros/time.h>
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
 
 #include "ecar_core/geometry.h"
 #include "ecar_core/local_graph.h"
@@ -40,8 +40,7 @@ ecar::GraphMapPoint fromMsg(const ecar_msgs::MapPointFull& msg);
 /// `device_name`: the name of kf.device (KeyFrameInfo carries names).
 ecar_msgs::KeyFrameInfo toMsg(const ecar::GraphKeyFrame& kf, const std::string& device_name);
 /// The device id is left invalid; its name goes to *device_name when given.
-ecar::GraphKeyFrame fromMsg(const ecar_msgs::KeyFrameInfo& msg,
-                            std::string* device_name = nullptr);
+ecar::GraphKeyFrame fromMsg(const ecar_msgs::KeyFrameInfo& msg, std::string* device_name = nullptr);
 
 /// LocalGraph/TrackedFrame status of a tracking result: OK, RELOCALISED
 /// (tracked by relocalisation or joining), LOST or NOT_INITIALISED.
@@ -58,9 +57,9 @@ ecar::LocalGraphData payloadFromMsg(const ecar_msgs::LocalGraph& msg);
 struct FrameMeta {
   std::string device;
   uint32_t frame_index = 0;
-  ros::Time stamp;            ///< capture time (Upload.header.stamp)
-  ros::Time upload_sent;      ///< Upload.sent
-  ros::Time server_received;  ///< server clock at reception
+  ros::Time stamp;             ///< capture time (Upload.header.stamp)
+  ros::Time upload_sent;       ///< Upload.sent
+  ros::Time server_received;   ///< server clock at reception
   float tracking_time = 0.0f;  ///< seconds
 };
 

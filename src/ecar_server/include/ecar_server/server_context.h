@@ -29,7 +29,7 @@ namespace ecar_server {
 
 /// A registered device.
 struct DeviceInfo {
-  std::string name;  ///< also its topic namespace
+  std::string name;   ///< also its topic namespace
   ecar::DeviceId id;  ///< stable for the name over the server's lifetime
   ecar::SyncMode mode = ecar::SyncMode::kEcar;
   size_t keyframe_queue = 10;
