@@ -38,6 +38,11 @@ std::vector<double> LocalMapper::baTimes() const {
   return ba_ms_;
 }
 
+void LocalMapper::setMappedCallback(std::function<void(KeyFrameId)> callback) {
+  std::lock_guard<std::mutex> lock(queue_mutex_);
+  mapped_callback_ = std::move(callback);
+}
+
 void LocalMapper::processPending() {
   for (;;) {
     KeyFrameId kf;
@@ -111,6 +116,12 @@ void LocalMapper::process(KeyFrameId kf) {
   }
   if (!descriptors.empty()) index_->add(kf, descriptors);
   if (!descriptors.empty() && keypoints_) keypoints_->add(kf, descriptors, point_rows);
+  std::function<void(KeyFrameId)> callback;
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    callback = mapped_callback_;
+  }
+  if (callback) callback(kf);
 }
 
 void LocalMapper::cullRecentPoints(KeyFrameId kf) {
@@ -455,6 +466,11 @@ Tracker& SlamSystem::tracker(DeviceId device) {
                                   &keypoint_index_);
   }
   return *t;
+}
+
+void SlamSystem::removeDevice(DeviceId device) {
+  std::lock_guard<std::mutex> lock(trackers_mutex_);
+  trackers_.erase(device);
 }
 
 TrackResult SlamSystem::track(DeviceId device, const cv::Mat& image, double timestamp,

@@ -13,6 +13,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -182,6 +183,10 @@ class LocalMapper {
   bool idle() const;
   /// Times of the local bundle adjustments so far (ms).
   std::vector<double> baTimes() const;
+  /// Called (on the mapping thread, or inside processPending()) after each
+  /// keyframe was mapped, with its id; the keyframe may have been culled
+  /// meanwhile. Set it before keyframes arrive; an empty function clears it.
+  void setMappedCallback(std::function<void(KeyFrameId)> callback);
 
  private:
   void process(KeyFrameId kf);
@@ -204,6 +209,7 @@ class LocalMapper {
   std::deque<KeyFrameId> queue_;
   std::vector<MapPointId> recent_points_;
   std::vector<double> ba_ms_;
+  std::function<void(KeyFrameId)> mapped_callback_;  // guarded by queue_mutex_
   std::atomic<bool> busy_{false}, stop_{false};
   std::thread thread_;
 };
@@ -215,6 +221,10 @@ class SlamSystem {
   /// Tracker of a device, created on first use. Different devices may be
   /// tracked from different threads at once; one device from one thread.
   Tracker& tracker(DeviceId device);
+  /// Forgets a device's tracker (its motion model, lost state, initialisation
+  /// views); its keyframes stay in the map. The caller makes sure no thread is
+  /// inside track() for that device. The next track() starts a new tracker.
+  void removeDevice(DeviceId device);
   TrackResult track(DeviceId device, const cv::Mat& image, double timestamp, uint32_t frame_index,
                     const std::optional<Eigen::Vector3d>& gravity_c = std::nullopt,
                     const std::optional<SE3>& T_o_c = std::nullopt);

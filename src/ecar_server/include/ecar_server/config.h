@@ -1,0 +1,57 @@
+// The edge server's parameters, one struct with in-class defaults (the same
+// values as config/server.yaml documents). Filled from rosparam in one place
+// (ros_params.h) and validated here, without ROS.
+#pragma once
+
+#include <string>
+
+#include "ecar_core/local_graph.h"
+#include "ecar_core/slam.h"
+
+namespace ecar_server {
+
+struct ServerConfig {
+  /// Default sync mode for devices whose Connect names none: "ecar" or "edgeslam".
+  std::string sync_mode = "ecar";
+  /// Threads aligning uploads (one device's uploads run in order, one at a time).
+  int workers = 2;
+  /// A device silent for this long (s) is dropped (unsubscribed, mirror and tracker forgotten).
+  double device_timeout = 10.0;
+  /// Uploads whose serialized length exceeds this (bytes) are dropped.
+  int max_upload_bytes = 2000000;
+  /// ROS subscriber queue of each /<device>/upload topic.
+  int upload_queue_size = 5;
+  /// Uploads of one device waiting for a worker; when full the oldest is dropped.
+  int device_queue_size = 3;
+  /// Publisher queue of each /<device>/local_graph topic.
+  int graph_queue_size = 10;
+  /// Device keyframe queue length assumed when Connect.keyframe_queue is 0.
+  int keyframe_queue = 10;
+  /// /ecar/markers rate (Hz); 0 disables the markers (tf is still published).
+  double marker_rate = 1.0;
+  /// ecar mode: a held point is resent when its position moved more than this (m).
+  double position_tolerance = 0.001;
+  /// ecar mode: and only when the move seen from the aligned camera exceeds
+  /// this angle (deg) across the ray or this fraction of the distance along it
+  /// (either 0: no view test).
+  double position_tolerance_deg = 0.05;
+  double position_tolerance_depth = 0.02;
+  /// edgeslam mode: local keyframes sent (the best first); 0 = all of them.
+  int edgeslam_keyframes = 10;
+  /// ORB keypoints per uploaded image.
+  int orb_features = 1000;
+  /// Keyframes in the tracker's local map.
+  int local_keyframes = 25;
+  /// A device's intrinsics may differ from the SLAM camera's by this fraction
+  /// (fx, fy, cx, cy) and its distortion coefficients by this much.
+  double camera_tolerance = 0.005;
+
+  /// Throws ecar::Error naming the first invalid key.
+  void validate() const;
+  ecar::SyncMode syncMode() const { return ecar::parseSyncMode(sync_mode); }
+  /// SLAM options (mapping on its own thread).
+  ecar::SlamConfig slamConfig() const;
+  ecar::LocalGraphConfig localGraphConfig() const;
+};
+
+}  // namespace ecar_server

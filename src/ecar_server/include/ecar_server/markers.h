@@ -1,0 +1,35 @@
+// rviz markers of the global graph: map points, keyframes coloured per
+// device, and each device's camera as the server aligned it.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <ros/time.h>
+#include <std_msgs/ColorRGBA.h>
+#include <visualization_msgs/MarkerArray.h>
+
+#include "ecar_core/geometry.h"
+#include "ecar_core/map.h"
+#include "ecar_core/types.h"
+
+namespace ecar_server {
+
+/// A device's last server-aligned camera.
+struct CameraMarker {
+  ecar::DeviceId device;
+  ecar::SE3 T_w_c = ecar::SE3::Identity();
+};
+
+/// A distinct colour per device id (a fixed palette, repeating after 8).
+std_msgs::ColorRGBA deviceColour(ecar::DeviceId id);
+
+/// Markers in frame `frame`: ns "map_points" (POINTS, grey), ns "keyframes"
+/// (CUBE_LIST of keyframe centres, per-device colours), ns "cameras" (one
+/// ARROW along each camera's optical axis, id = device id). Takes the map's
+/// read lock.
+visualization_msgs::MarkerArray mapMarkers(const ecar::Map& map,
+                                           const std::vector<CameraMarker>& cameras,
+                                           const std::string& frame, const ros::Time& stamp);
+
+}  // namespace ecar_server

@@ -1,0 +1,106 @@
+// GraphPublisher: for each tracked frame, builds the device's local graph
+// (ecar_core's LocalGraphBuilder with the device's mirror) and publishes it on
+// /<device>/local_graph with the timing fields.
+#include <map>
+#include <memory>
+#include <mutex>
+
+#include <ecar_msgs/LocalGraph.h>
+#include <ecar_msgs/TrackedFrame.h>
+#include <nodelet/nodelet.h>
+#include <ros/ros.h>
+#include <boost/make_shared.hpp>
+#include <pluginlib/class_list_macros.hpp>
+
+#include "ecar_core/error.h"
+#include "ecar_core/local_graph.h"
+#include "ecar_server/conversions.h"
+#include "ecar_server/ros_params.h"
+#include "ecar_server/server_context.h"
+
+namespace ecar_server {
+
+class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
+ public:
+  ~GraphPublisherNodelet() override {
+    if (ctx_) ctx_->removeListener(this);
+    tracked_sub_.shutdown();
+  }
+
+  void onDeviceAdded(const DeviceInfo& device) override {
+    ros::Publisher pub = getMTNodeHandle().advertise<ecar_msgs::LocalGraph>(
+        DeviceTopicNames{device.name}.localGraph(),
+        static_cast<uint32_t>(config_.graph_queue_size));
+    std::lock_guard<std::mutex> lock(mutex_);
+    publishers_[device.name] = pub;
+  }
+
+  void onDeviceRemoved(const DeviceInfo& device) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    publishers_.erase(device.name);
+  }
+
+ private:
+  void onInit() override {
+    ros::NodeHandle& nh = getMTNodeHandle();
+    config_ = loadServerConfig(nh);
+    ctx_ = ServerContext::get(nh.getNamespace(), config_);
+    builder_ = ecar::LocalGraphBuilder(config_.localGraphConfig());
+    ctx_->addListener(this);
+    // One subscription: its callbacks run one at a time, in order.
+    tracked_sub_ = nh.subscribe(kTrackedFrameTopic, 100, &GraphPublisherNodelet::onTrackedFrame,
+                                this, ros::TransportHints().tcpNoDelay());
+  }
+
+  void onTrackedFrame(const ecar_msgs::TrackedFrame::ConstPtr& msg) {
+    ecar::TrackResult result;
+    try {
+      result = fromMsg(*msg);
+    } catch (const ecar::Error& e) {
+      NODELET_WARN_THROTTLE(2.0, "device %s: tracked frame %u: %s: dropped", msg->device_id.c_str(),
+                            msg->frame_index, e.what());
+      return;
+    }
+    const std::optional<DeviceInfo> info = ctx_->device(msg->device_id);
+    const std::shared_ptr<ecar::SlamSystem> slam = ctx_->slam();
+    ros::Publisher pub;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      const auto it = publishers_.find(msg->device_id);
+      if (it != publishers_.end()) pub = it->second;
+    }
+    if (!info || !slam || !pub) return;  // disconnected meanwhile
+
+    auto graph = boost::make_shared<ecar_msgs::LocalGraph>();
+    ecar::LocalGraphData data;
+    ctx_->withMirror(info->name, [&](ecar::DeviceMirror& mirror) {
+      data = builder_.build(slam->map(), result, info->mode, &mirror);
+    });
+    graph->header.stamp = msg->header.stamp;
+    graph->header.frame_id = kMapFrame;
+    graph->device_id = msg->device_id;
+    graph->frame_index = msg->frame_index;
+    graph->status = msg->status;
+    graph->pose = msg->pose;
+    graph->map_epoch = ctx_->mapEpoch();
+    fillPayload(
+        data, [this](ecar::DeviceId id) { return ctx_->deviceName(id); }, graph.get());
+    graph->upload_sent = msg->upload_sent;
+    graph->server_received = msg->server_received;
+    graph->tracking_time = msg->tracking_time;
+    graph->server_sent = ros::Time::now();
+    graph->server_time = static_cast<float>((graph->server_sent - msg->server_received).toSec());
+    pub.publish(graph);
+  }
+
+  ServerConfig config_;
+  std::shared_ptr<ServerContext> ctx_;
+  ecar::LocalGraphBuilder builder_;
+  ros::Subscriber tracked_sub_;
+  std::mutex mutex_;  // guards publishers_
+  std::map<std::string, ros::Publisher> publishers_;
+};
+
+}  // namespace ecar_server
+
+PLUGINLIB_EXPORT_CLASS(ecar_server::GraphPublisherNodelet, nodelet::Nodelet)

@@ -1,0 +1,176 @@
+// Tracking (coordinate alignment): subscribes /<device>/upload for every
+// registered device, checks each upload, and aligns it on a worker pool
+// (DeviceWorkQueue: one device's uploads in order); publishes the result on
+// /ecar/tracked_frame (zero-copy to the GraphPublisher and Visualizer).
+#include <chrono>
+#include <map>
+#include <memory>
+#include <mutex>
+
+#include <ecar_msgs/TrackedFrame.h>
+#include <ecar_msgs/Upload.h>
+#include <nodelet/nodelet.h>
+#include <ros/ros.h>
+#include <boost/make_shared.hpp>
+#include <pluginlib/class_list_macros.hpp>
+
+#include "ecar_core/error.h"
+#include "ecar_server/conversions.h"
+#include "ecar_server/device_work_queue.h"
+#include "ecar_server/ros_params.h"
+#include "ecar_server/server_context.h"
+
+namespace ecar_server {
+
+class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
+ public:
+  ~TrackingNodelet() override {
+    if (ctx_) ctx_->removeListener(this);
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      subscribers_.clear();
+    }
+    pool_.reset();  // joins the workers before the members they use go
+  }
+
+  void onSlamCreated(const std::shared_ptr<ecar::SlamSystem>& slam) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    slam_ = slam;
+  }
+
+  void onDeviceAdded(const DeviceInfo& device) override {
+    const std::string name = device.name;
+    const boost::function<void(const ecar_msgs::Upload::ConstPtr&)> callback =
+        [this, name](const ecar_msgs::Upload::ConstPtr& msg) { onUpload(name, msg); };
+    ros::Subscriber sub = getMTNodeHandle().subscribe<ecar_msgs::Upload>(
+        DeviceTopicNames{name}.upload(), static_cast<uint32_t>(config_.upload_queue_size), callback,
+        ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay());
+    std::lock_guard<std::mutex> lock(mutex_);
+    subscribers_[name] = sub;
+  }
+
+  void onDeviceRemoved(const DeviceInfo& device) override {
+    std::shared_ptr<ecar::SlamSystem> slam;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      subscribers_.erase(device.name);
+      slam = slam_;
+    }
+    const ecar::DeviceId id = device.id;
+    pool_->removeDevice(device.name, [slam, id] {
+      if (slam) slam->removeDevice(id);
+    });
+  }
+
+ private:
+  void onInit() override {
+    ros::NodeHandle& nh = getMTNodeHandle();
+    config_ = loadServerConfig(nh);
+    ctx_ = ServerContext::get(nh.getNamespace(), config_);
+    pool_ = std::make_unique<DeviceWorkQueue>(config_.workers,
+                                              static_cast<size_t>(config_.device_queue_size));
+    tracked_pub_ = nh.advertise<ecar_msgs::TrackedFrame>(kTrackedFrameTopic, 100);
+    ctx_->addListener(this);
+    NODELET_INFO("tracking: %d workers, %d uploads queued per device", config_.workers,
+                 config_.device_queue_size);
+  }
+
+  // Checks on the manager's thread; the alignment runs on the pool.
+  void onUpload(const std::string& device, const ecar_msgs::Upload::ConstPtr& msg) {
+    const ros::Time received = ros::Time::now();
+    const uint32_t bytes = ros::serialization::serializationLength(*msg);
+    if (bytes > static_cast<uint32_t>(config_.max_upload_bytes)) {
+      NODELET_WARN_THROTTLE(2.0,
+                            "device %s: upload of %u bytes (field image) exceeds "
+                            "max_upload_bytes %d: dropped",
+                            device.c_str(), bytes, config_.max_upload_bytes);
+      return;
+    }
+    if (msg->device_id != device) {
+      NODELET_WARN_THROTTLE(2.0,
+                            "device %s: upload with device_id '%s' (field device_id) on "
+                            "%s: dropped",
+                            device.c_str(), msg->device_id.c_str(),
+                            DeviceTopicNames{device}.upload().c_str());
+      return;
+    }
+    if (!ctx_->touch(device, steadySeconds())) {
+      NODELET_WARN_THROTTLE(2.0, "device %s: upload from a device not connected: dropped",
+                            device.c_str());
+      return;
+    }
+    if (msg->reset) ctx_->resetMirror(device);
+    UploadMotion motion;
+    try {
+      motion = motionOf(*msg);
+    } catch (const ecar::Error& e) {
+      NODELET_WARN_THROTTLE(2.0, "device %s: upload frame %u: %s: dropped", device.c_str(),
+                            msg->frame_index, e.what());
+      return;
+    }
+    const bool dropped = pool_->push(
+        device, [this, device, msg, motion, received] { align(device, msg, motion, received); });
+    if (dropped) {
+      NODELET_WARN_THROTTLE(2.0,
+                            "device %s: %d uploads wait for alignment "
+                            "(device_queue_size): dropped the oldest",
+                            device.c_str(), config_.device_queue_size);
+    }
+  }
+
+  // On a worker: decode, align, publish.
+  void align(const std::string& device, const ecar_msgs::Upload::ConstPtr& msg,
+             const UploadMotion& motion, const ros::Time& received) {
+    std::shared_ptr<ecar::SlamSystem> slam;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      slam = slam_;
+    }
+    const std::optional<DeviceInfo> info = ctx_->device(device);
+    if (!slam || !info) return;  // disconnected meanwhile
+    cv::Mat image;
+    try {
+      image = decodeImage(*msg);
+    } catch (const ecar::Error& e) {
+      NODELET_WARN_THROTTLE(2.0, "device %s: upload frame %u: %s: dropped", device.c_str(),
+                            msg->frame_index, e.what());
+      return;
+    }
+    if (image.cols != slam->camera().width() || image.rows != slam->camera().height()) {
+      NODELET_WARN_THROTTLE(2.0,
+                            "device %s: upload frame %u: image is %dx%d, not the connected "
+                            "camera's %dx%d: dropped",
+                            device.c_str(), msg->frame_index, image.cols, image.rows,
+                            slam->camera().width(), slam->camera().height());
+      return;
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    const ecar::TrackResult result = slam->track(info->id, image, msg->header.stamp.toSec(),
+                                                 msg->frame_index, motion.gravity_c, motion.T_o_c);
+    FrameMeta meta;
+    meta.device = device;
+    meta.frame_index = msg->frame_index;
+    meta.stamp = msg->header.stamp;
+    meta.upload_sent = msg->sent;
+    meta.server_received = received;
+    meta.tracking_time =
+        std::chrono::duration<float>(std::chrono::steady_clock::now() - t0).count();
+    if (!result.message.empty()) {
+      NODELET_DEBUG("device %s: frame %u: %s", device.c_str(), msg->frame_index,
+                    result.message.c_str());
+    }
+    tracked_pub_.publish(boost::make_shared<ecar_msgs::TrackedFrame>(toMsg(result, meta)));
+  }
+
+  ServerConfig config_;
+  std::shared_ptr<ServerContext> ctx_;
+  std::unique_ptr<DeviceWorkQueue> pool_;
+  ros::Publisher tracked_pub_;
+  std::mutex mutex_;  // guards slam_ and subscribers_
+  std::shared_ptr<ecar::SlamSystem> slam_;
+  std::map<std::string, ros::Subscriber> subscribers_;
+};
+
+}  // namespace ecar_server
+
+PLUGINLIB_EXPORT_CLASS(ecar_server::TrackingNodelet, nodelet::Nodelet)
