@@ -50,12 +50,12 @@ DeviceKeyFrameQueue::DeviceKeyFrameQueue(int capacity) : capacity_(capacity) {
 }
 
 QueueInsertResult DeviceKeyFrameQueue::insert(DeviceKeyFrame keyframe,
-                                              const std::vector<GraphPosition>& positions) {
+                                              const std::vector<ReceivedPosition>& positions) {
   QueueInsertResult result;
   for (const MapPointId& id : keyframe.point_ids) {
     if (id.valid()) ++points_[id].observations;
   }
-  for (const GraphPosition& p : positions) {
+  for (const ReceivedPosition& p : positions) {
     auto it = points_.find(p.id);
     if (it == points_.end()) continue;  // no keyframe holds it
     it->second.p_w = p.p_w;
@@ -121,7 +121,7 @@ GraphUpdate DeviceTracker::addLocalGraph(const cv::Mat& image, const LocalGraphI
   kf.T_w_c = graph.T_w_c;
   kf.point_ids.reserve(graph.points.size());
   kf.keypoints.reserve(graph.points.size());
-  for (const GraphPoint& p : graph.points) {
+  for (const ReceivedPoint& p : graph.points) {
     kf.point_ids.push_back(p.id);
     kf.keypoints.push_back(p.keypoint);
   }

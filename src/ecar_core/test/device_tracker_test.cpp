@@ -34,8 +34,8 @@ DeviceKeyFrame keyframeOf(std::initializer_list<uint32_t> ids) {
   return kf;
 }
 
-std::vector<GraphPosition> positionsOf(std::initializer_list<uint32_t> ids) {
-  std::vector<GraphPosition> out;
+std::vector<ReceivedPosition> positionsOf(std::initializer_list<uint32_t> ids) {
+  std::vector<ReceivedPosition> out;
   for (uint32_t id : ids) out.push_back({MapPointId(id), Eigen::Vector3d(id, 0.0, 1.0)});
   return out;
 }

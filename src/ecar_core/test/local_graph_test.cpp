@@ -228,13 +228,13 @@ TEST_F(LocalGraphTest, EdgeSlamCarriesTheWholeLocalMap) {
 }
 
 // Wire bytes of the ecar payload (ecar_msgs: TrackedPoint 10 B, PointPosition
-// 16 B, plus a 4-byte array length each) against edgeslam's (MapPointFull
+// 14 B, plus a 4-byte array length each) against edgeslam's (MapPointFull
 // 68 B, KeyFrameInfo ids 4 B each): a device that keeps tracking the same
 // points gets about 10 B per point in ecar mode.
 TEST_F(LocalGraphTest, EcarPayloadPerPointIsSmall) {
   DeviceMirror mirror(10);
   const auto bytes = [](const LocalGraphData& g) {
-    size_t b = 8 + 10 * g.points.size() + 16 * g.positions.size();
+    size_t b = 8 + 10 * g.points.size() + 14 * g.positions.size();
     b += 8 + 68 * g.map_points.size();
     for (const auto& k : g.keyframes) b += 4 + 56 + 4 + 4 * k.points.size() + 4 + 8;
     return b;

@@ -31,7 +31,7 @@ float seconds(const ros::Duration& d) { return static_cast<float>(d.toSec()); }
 
 }  // namespace
 
-ecar_msgs::TrackedPoint toTrackedPoint(const ecar::GraphPoint& point) {
+ecar_msgs::TrackedPoint toTrackedPoint(const ecar::ReceivedPoint& point) {
   const cv::KeyPoint& kp = point.keypoint;
   const float max_px = 65535.0f / kUvScale;
   if (!(kp.pt.x >= 0.0f && kp.pt.x <= max_px && kp.pt.y >= 0.0f && kp.pt.y <= max_px)) {
@@ -49,8 +49,8 @@ ecar_msgs::TrackedPoint toTrackedPoint(const ecar::GraphPoint& point) {
   return msg;
 }
 
-ecar::GraphPoint fromTrackedPoint(const ecar_msgs::TrackedPoint& msg) {
-  ecar::GraphPoint p;
+ecar::ReceivedPoint fromTrackedPoint(const ecar_msgs::TrackedPoint& msg) {
+  ecar::ReceivedPoint p;
   p.id = ecar::MapPointId(msg.id);
   p.keypoint.pt = cv::Point2f(msg.u / kUvScale, msg.v / kUvScale);
   p.keypoint.angle = msg.angle * kAngleScale;
@@ -69,8 +69,12 @@ ecar::LocalGraphInput fromLocalGraph(const ecar_msgs::LocalGraph& msg) {
   for (size_t i = 0; i < msg.positions.size(); ++i) {
     const auto& p = msg.positions[i];
     const float xyz[3] = {p.x, p.y, p.z};
-    g.positions.push_back(
-        {ecar::MapPointId(p.id), finiteVector(xyz, "positions[" + std::to_string(i) + "]")});
+    const std::string field = "positions[" + std::to_string(i) + "]";
+    if (p.index >= g.points.size()) {
+      throw ecar::Error(field + ".index " + std::to_string(p.index) + " is not among the " +
+                        std::to_string(g.points.size()) + " points");
+    }
+    g.positions.push_back({g.points[p.index].id, finiteVector(xyz, field)});
   }
   return g;
 }
@@ -83,8 +87,14 @@ void toLocalGraph(const ecar::LocalGraphInput& graph, ecar_msgs::LocalGraph* msg
   for (const auto& p : graph.points) msg->points.push_back(toTrackedPoint(p));
   msg->positions.clear();
   for (const auto& p : graph.positions) {
+    const auto it = std::find_if(graph.points.begin(), graph.points.end(),
+                                 [&](const ecar::ReceivedPoint& q) { return q.id == p.id; });
+    if (it == graph.points.end()) {
+      throw ecar::Error("positions: map point " + std::to_string(p.id.value) +
+                        " is not among the points");
+    }
     ecar_msgs::PointPosition m;
-    m.id = p.id.value;
+    m.index = static_cast<uint16_t>(it - graph.points.begin());
     m.x = static_cast<float>(p.p_w.x());
     m.y = static_cast<float>(p.p_w.y());
     m.z = static_cast<float>(p.p_w.z());

@@ -24,7 +24,7 @@ void expectPoseNear(const ecar::SE3& a, const ecar::SE3& b) {
 }
 
 TEST(TrackedPointTest, RoundTripKeepsTheWireResolution) {
-  ecar::GraphPoint p;
+  ecar::ReceivedPoint p;
   p.id = ecar::MapPointId(42);
   p.keypoint = cv::KeyPoint(123.4567f, 45.0625f, 31.0f, 359.9f, 0.0f, 3);
   const ecar_msgs::TrackedPoint m = toTrackedPoint(p);
@@ -33,7 +33,7 @@ TEST(TrackedPointTest, RoundTripKeepsTheWireResolution) {
   EXPECT_EQ(m.v, 361);    // 45.0625 * 8 = 360.5 -> 361
   EXPECT_EQ(m.angle, 0);  // 359.9 deg wraps to step 0
   EXPECT_EQ(m.octave, 3);
-  const ecar::GraphPoint back = fromTrackedPoint(m);
+  const ecar::ReceivedPoint back = fromTrackedPoint(m);
   EXPECT_EQ(back.id, p.id);
   EXPECT_NEAR(back.keypoint.pt.x, p.keypoint.pt.x, 1.0 / 16.0);
   EXPECT_NEAR(back.keypoint.pt.y, p.keypoint.pt.y, 1.0 / 16.0);
@@ -62,6 +62,8 @@ TEST(LocalGraphTest, EcarRoundTrip) {
   ASSERT_EQ(back.points.size(), 5u);
   EXPECT_EQ(back.points[4].id, ecar::MapPointId(5));
   EXPECT_FLOAT_EQ(back.points[4].keypoint.pt.x, 50.0f);
+  ASSERT_EQ(msg.positions.size(), 1u);
+  EXPECT_EQ(msg.positions[0].index, 1);  // points[1] has id 2
   ASSERT_EQ(back.positions.size(), 1u);
   EXPECT_EQ(back.positions[0].id, ecar::MapPointId(2));
   EXPECT_DOUBLE_EQ(back.positions[0].p_w.z(), 3.5);
@@ -70,13 +72,24 @@ TEST(LocalGraphTest, EcarRoundTrip) {
 TEST(LocalGraphTest, NanIsReportedByField) {
   ecar_msgs::LocalGraph msg;
   msg.pose.orientation.w = 1.0;
+  msg.points.resize(3);
   msg.positions.resize(3);
+  for (uint16_t i = 0; i < 3; ++i) msg.positions[i].index = i;
   msg.positions[2].y = std::numeric_limits<float>::quiet_NaN();
   try {
     fromLocalGraph(msg);
     FAIL() << "no exception";
   } catch (const ecar::Error& e) {
     EXPECT_NE(std::string(e.what()).find("positions[2]"), std::string::npos) << e.what();
+  }
+  // A position naming a point the graph does not have.
+  msg.positions[2].y = 0.0f;
+  msg.positions[1].index = 3;
+  try {
+    fromLocalGraph(msg);
+    FAIL() << "no exception";
+  } catch (const ecar::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("positions[1].index"), std::string::npos) << e.what();
   }
   msg.positions.clear();
   msg.pose.position.x = std::numeric_limits<double>::infinity();

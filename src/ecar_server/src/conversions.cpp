@@ -51,17 +51,22 @@ ecar::GraphPoint fromMsg(const ecar_msgs::TrackedPoint& msg) {
   return p;
 }
 
-ecar_msgs::PointPosition toMsg(const ecar::GraphPosition& p) {
+ecar_msgs::PointPosition toMsg(const ecar::GraphPosition& p, uint16_t index) {
   ecar_msgs::PointPosition m;
-  m.id = p.id.value;
+  m.index = index;
   m.x = p.p_w.x();
   m.y = p.p_w.y();
   m.z = p.p_w.z();
   return m;
 }
 
-ecar::GraphPosition fromMsg(const ecar_msgs::PointPosition& msg) {
-  return {ecar::MapPointId(msg.id), Eigen::Vector3f(msg.x, msg.y, msg.z)};
+ecar::GraphPosition fromMsg(const ecar_msgs::PointPosition& msg,
+                            const std::vector<ecar_msgs::TrackedPoint>& points) {
+  if (msg.index >= points.size()) {
+    throw ecar::Error("positions: index " + std::to_string(msg.index) + " is not among the " +
+                      std::to_string(points.size()) + " points");
+  }
+  return {ecar::MapPointId(points[msg.index].id), Eigen::Vector3f(msg.x, msg.y, msg.z)};
 }
 
 ecar_msgs::MapPointFull toMsg(const ecar::GraphMapPoint& p) {
@@ -122,7 +127,7 @@ ecar::LocalGraphData payloadFromMsg(const ecar_msgs::LocalGraph& msg) {
   d.mode = msg.sync_mode == ecar_msgs::LocalGraph::SYNC_EDGESLAM ? ecar::SyncMode::kEdgeSlam
                                                                  : ecar::SyncMode::kEcar;
   for (const auto& p : msg.points) d.points.push_back(fromMsg(p));
-  for (const auto& p : msg.positions) d.positions.push_back(fromMsg(p));
+  for (const auto& p : msg.positions) d.positions.push_back(fromMsg(p, msg.points));
   for (const auto& k : msg.keyframes) d.keyframes.push_back(fromMsg(k));
   for (const auto& p : msg.map_points) d.map_points.push_back(fromMsg(p));
   return d;

@@ -83,8 +83,17 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
     graph->status = msg->status;
     graph->pose = msg->pose;
     graph->map_epoch = ctx_->mapEpoch();
-    fillPayload(
-        data, [this](ecar::DeviceId id) { return ctx_->deviceName(id); }, graph.get());
+    try {
+      fillPayload(
+          data, [this](ecar::DeviceId id) { return ctx_->deviceName(id); }, graph.get());
+    } catch (const ecar::Error& e) {
+      // The mirror counted positions the device will not get: forget it, so
+      // the next graph carries every position again.
+      ctx_->resetMirror(info->name);
+      NODELET_WARN_THROTTLE(2.0, "device %s: local graph %u not encodable: %s: dropped",
+                            msg->device_id.c_str(), msg->frame_index, e.what());
+      return;
+    }
     graph->upload_sent = msg->upload_sent;
     graph->server_received = msg->server_received;
     graph->tracking_time = msg->tracking_time;

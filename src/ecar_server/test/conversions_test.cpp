@@ -48,10 +48,16 @@ TEST(ConversionsTest, TrackedPointRoundTripsOnItsGrid) {
 }
 
 TEST(ConversionsTest, PositionAndMapPointRoundTrip) {
+  // A position names its point by index into the graph's points.
+  std::vector<ecar_msgs::TrackedPoint> points(3);
+  points[2].id = 7;
   const ecar::GraphPosition pos{ecar::MapPointId(7), Eigen::Vector3f(1.0f, -2.5f, 3.25f)};
-  const ecar::GraphPosition pos2 = fromMsg(toMsg(pos));
+  const ecar_msgs::PointPosition wire = toMsg(pos, 2);
+  EXPECT_EQ(wire.index, 2);
+  const ecar::GraphPosition pos2 = fromMsg(wire, points);
   EXPECT_EQ(pos2.id, pos.id);
   EXPECT_EQ(pos2.p_w, pos.p_w);
+  EXPECT_THROW(fromMsg(toMsg(pos, 3), points), ecar::Error);
   ecar::GraphMapPoint mp;
   mp.id = ecar::MapPointId(9);
   mp.p_w = Eigen::Vector3f(0.5f, 1.5f, -4.0f);
@@ -87,6 +93,7 @@ TEST(ConversionsTest, KeyFrameInfoRoundTrips) {
 TEST(ConversionsTest, LocalGraphPayloadRoundTrips) {
   ecar::LocalGraphData d;
   d.mode = ecar::SyncMode::kEdgeSlam;
+  d.points.push_back({ecar::MapPointId(2), 1.5f, 2.25f, 0.0f, 0});
   d.points.push_back({ecar::MapPointId(3), 8.5f, 9.25f, 45.0f, 1});
   d.positions.push_back({ecar::MapPointId(3), Eigen::Vector3f(1, 2, 3)});
   ecar::GraphKeyFrame kf;
@@ -102,11 +109,19 @@ TEST(ConversionsTest, LocalGraphPayloadRoundTrips) {
   EXPECT_EQ(msg.keyframes[0].device_id, "device_1");
   const ecar::LocalGraphData d2 = payloadFromMsg(msg);
   EXPECT_EQ(d2.mode, d.mode);
-  ASSERT_EQ(d2.points.size(), 1u);
-  EXPECT_EQ(d2.points[0].id, d.points[0].id);
-  EXPECT_FLOAT_EQ(d2.points[0].v, 9.25f);
+  ASSERT_EQ(d2.points.size(), 2u);
+  EXPECT_EQ(d2.points[1].id, d.points[1].id);
+  EXPECT_FLOAT_EQ(d2.points[1].v, 9.25f);
+  ASSERT_EQ(msg.positions.size(), 1u);
+  EXPECT_EQ(msg.positions[0].index, 1);
   ASSERT_EQ(d2.positions.size(), 1u);
+  EXPECT_EQ(d2.positions[0].id, d.positions[0].id);
   EXPECT_EQ(d2.positions[0].p_w, d.positions[0].p_w);
+  // A position whose point is not in the graph cannot be encoded.
+  d.positions.push_back({ecar::MapPointId(99), Eigen::Vector3f(1, 2, 3)});
+  EXPECT_THROW(fillPayload(
+                   d, [](ecar::DeviceId) { return std::string(); }, &msg),
+               ecar::Error);
   ASSERT_EQ(d2.keyframes.size(), 1u);
   EXPECT_EQ(d2.keyframes[0].points, kf.points);
   EXPECT_EQ(d2.map_points.size(), 1u);

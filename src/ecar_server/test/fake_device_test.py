@@ -137,8 +137,9 @@ class FakeDevice:
 
     def apply(self, msg):
         """The device's side of the contract: new positions, one keyframe, eviction."""
-        for p in msg.positions:
-            position = (p.x, p.y, p.z)
+        for pos in msg.positions:
+            p = msg.points[pos.index]  # a position names its point by index into points
+            position = (pos.x, pos.y, pos.z)
             if self.held.get(p.id) == position:
                 self.unchanged_resends += 1
             elif p.id in self.held:

@@ -54,13 +54,13 @@ struct DeviceTrackerConfig {
 
 /// A map point of an ecar-mode local graph as the server tracked it in the
 /// aligned image.
-struct GraphPoint {
+struct ReceivedPoint {
   MapPointId id;
   cv::KeyPoint keypoint;  ///< pt in level-0 px (distorted image), angle (deg), octave
 };
 
 /// A map point position sent in a local graph.
-struct GraphPosition {
+struct ReceivedPosition {
   MapPointId id;
   Eigen::Vector3d p_w = Eigen::Vector3d::Zero();  ///< map frame, m
 };
@@ -70,8 +70,8 @@ struct GraphPosition {
 struct LocalGraphInput {
   uint32_t frame_index = 0;
   SE3 T_w_c = SE3::Identity();  ///< server pose of the aligned frame
-  std::vector<GraphPoint> points;
-  std::vector<GraphPosition> positions;
+  std::vector<ReceivedPoint> points;
+  std::vector<ReceivedPosition> positions;
 };
 
 /// An edgeslam-mode local map: the aligned frame's local keyframes and every
@@ -123,7 +123,7 @@ class DeviceKeyFrameQueue {
   /// its position). Positions of points that no queued keyframe holds are not
   /// kept. Insert-then-evict: a point the new keyframe shares with the evicted
   /// one keeps its position.
-  QueueInsertResult insert(DeviceKeyFrame keyframe, const std::vector<GraphPosition>& positions);
+  QueueInsertResult insert(DeviceKeyFrame keyframe, const std::vector<ReceivedPosition>& positions);
   /// Drops every keyframe and point (map epoch changed).
   void clear();
 

@@ -36,8 +36,8 @@ uint32_t wireBytes(const Msg& msg) {
 /// Keypoint in the wire encoding (1/8 px, angle in 256 steps, octave). Throws
 /// ecar::Error when the keypoint lies outside [0, 8191.875] px or its octave
 /// outside [0, 255].
-ecar_msgs::TrackedPoint toTrackedPoint(const ecar::GraphPoint& point);
-ecar::GraphPoint fromTrackedPoint(const ecar_msgs::TrackedPoint& msg);
+ecar_msgs::TrackedPoint toTrackedPoint(const ecar::ReceivedPoint& point);
+ecar::ReceivedPoint fromTrackedPoint(const ecar_msgs::TrackedPoint& msg);
 
 /// ecar-mode graph: pose, points, positions (float32 on the wire). Throws
 /// ecar::Error naming the field on a non-finite pose or position.

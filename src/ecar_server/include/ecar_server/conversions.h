@@ -20,6 +20,7 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
+#include "ecar_core/error.h"
 #include "ecar_core/geometry.h"
 #include "ecar_core/local_graph.h"
 #include "ecar_core/slam.h"
@@ -31,8 +32,11 @@ namespace ecar_server {
 ecar_msgs::TrackedPoint toMsg(const ecar::GraphPoint& p);
 ecar::GraphPoint fromMsg(const ecar_msgs::TrackedPoint& msg);
 
-ecar_msgs::PointPosition toMsg(const ecar::GraphPosition& p);
-ecar::GraphPosition fromMsg(const ecar_msgs::PointPosition& msg);
+/// A position on the wire names its point by `index` into LocalGraph.points.
+ecar_msgs::PointPosition toMsg(const ecar::GraphPosition& p, uint16_t index);
+/// Throws ecar::Error ("positions[i].index") when the index is not in `points`.
+ecar::GraphPosition fromMsg(const ecar_msgs::PointPosition& msg,
+                            const std::vector<ecar_msgs::TrackedPoint>& points);
 
 ecar_msgs::MapPointFull toMsg(const ecar::GraphMapPoint& p);
 ecar::GraphMapPoint fromMsg(const ecar_msgs::MapPointFull& msg);
@@ -107,9 +111,20 @@ void fillPayload(const ecar::LocalGraphData& data, NameOf&& name_of, ecar_msgs::
   msg->points.clear();
   msg->points.reserve(data.points.size());
   for (const auto& p : data.points) msg->points.push_back(toMsg(p));
+  // Positions are a subsequence of the points (the builder emits them in the
+  // same order): one merge pass finds each position's index.
+  if (data.points.size() > 0xFFFF) throw ecar::Error("local graph: more than 65535 points");
   msg->positions.clear();
   msg->positions.reserve(data.positions.size());
-  for (const auto& p : data.positions) msg->positions.push_back(toMsg(p));
+  size_t index = 0;
+  for (const auto& p : data.positions) {
+    while (index < data.points.size() && data.points[index].id != p.id) ++index;
+    if (index == data.points.size()) {
+      throw ecar::Error("local graph: a position for map point " + std::to_string(p.id.value) +
+                        " that is not among its points (or out of their order)");
+    }
+    msg->positions.push_back(toMsg(p, static_cast<uint16_t>(index)));
+  }
   msg->keyframes.clear();
   msg->keyframes.reserve(data.keyframes.size());
   for (const auto& k : data.keyframes) msg->keyframes.push_back(toMsg(k, name_of(k.device)));
