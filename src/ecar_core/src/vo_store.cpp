@@ -294,8 +294,9 @@ class VoStore::Database {
     std::vector<std::string> tables;
     {
       sqlite3_stmt* list = nullptr;
-      int rc = sqlite3_prepare_v2(db_, "SELECT name FROM sqlite_master WHERE type = 'table'", -1,
-                                  &list, nullptr);
+      int rc = sqlite3_prepare_v2(
+          db_, "SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name", -1, &list,
+          nullptr);
       if (rc != SQLITE_OK) {
         const std::string why = sqlite3_errmsg(db_);
         throw Error(path_ + ": cannot read it as an SQLite database: " + why);
@@ -616,8 +617,13 @@ VoReject VoStore::check(VirtualObject* vo, std::string* reason) const {
   } else {
     vo->start = vo->end = vo->position;
   }
-  const std::pair<const char*, const Eigen::Vector3d*> points[] = {
-      {"start", &vo->start}, {"end", &vo->end}, {"position", &vo->position}};
+  // A line lies inside the (convex) bounds when its end points do.
+  std::vector<std::pair<const char*, const Eigen::Vector3d*>> points;
+  if (line) {
+    points = {{"start", &vo->start}, {"end", &vo->end}};
+  } else {
+    points = {{"position", &vo->position}};
+  }
   for (const auto& [name, p] : points) {
     if ((p->array() < map_min_.array()).any() || (p->array() > map_max_.array()).any()) {
       *reason = std::string(name) + " " + str(*p) + " is out of the map bounds " + str(map_min_) +
