@@ -40,6 +40,20 @@ Eigen::Vector3d cellCenter(CellKey cell, double cell_size) {
   return (Eigen::Vector3d(cell.x, cell.y, cell.z) + Eigen::Vector3d::Constant(0.5)) * cell_size;
 }
 
+bool containsCell(const std::vector<CellKey>& sorted_cells, CellKey cell, int radius) {
+  for (int dx = -radius; dx <= radius; ++dx) {
+    for (int dy = -radius; dy <= radius; ++dy) {
+      for (int dz = -radius; dz <= radius; ++dz) {
+        if (std::binary_search(sorted_cells.begin(), sorted_cells.end(),
+                               CellKey{cell.x + dx, cell.y + dy, cell.z + dz})) {
+          return true;
+        }
+      }
+    }
+  }
+  return false;
+}
+
 // ---------------------------------------------------------------- GridPlanes
 
 GridPlanes::GridPlanes(const std::vector<Plane>& planes, double boundary_margin) {

@@ -51,6 +51,13 @@ CellKey cellOf(const Eigen::Vector3d& p_w, double cell_size);
 /// Centre of a cell, map frame, m.
 Eigen::Vector3d cellCenter(CellKey cell, double cell_size);
 
+/// True when `cell`, or a cell within `radius` cells of it in x, y and z, is in
+/// `sorted_cells` (sorted, as visibleCells returns them). A plane lying along a
+/// cell border (a floor at z = 0.1 k) puts its hits on either side of it, and a
+/// re-estimated plane moves them by millimetres: the cell of a VO's position and
+/// the cells of the rays that hit its plane can differ by one; radius 1 absorbs it.
+bool containsCell(const std::vector<CellKey>& sorted_cells, CellKey cell, int radius = 0);
+
 /// A ray's nearest plane hit.
 struct RayHit {
   PlaneId plane;
