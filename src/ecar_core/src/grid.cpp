@@ -162,7 +162,9 @@ void GridConnection::visibleCells(const SE3& T_w_c, const GridPlanes& planes,
   cells->clear();
   const double cell = config_.cell_size;
   cast(T_w_c, planes, [&](size_t, PlaneId, const Eigen::Vector3d& x, double) {
-    cells->push_back(cellOf(x, cell));
+    const CellKey c = cellOf(x, cell);
+    // Neighbouring samples mostly fall into the same cell: skip the repeats early.
+    if (cells->empty() || cells->back() != c) cells->push_back(c);
   });
   std::sort(cells->begin(), cells->end());
   cells->erase(std::unique(cells->begin(), cells->end()), cells->end());
@@ -254,8 +256,7 @@ std::vector<std::pair<KeyFrameId, std::vector<CellKey>>> GridMap::save() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   std::vector<std::pair<KeyFrameId, std::vector<CellKey>>> out(keyframe_cells_.begin(),
                                                                keyframe_cells_.end());
-  std::sort(out.begin(), out.end(),
-            [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
   return out;
 }
 

@@ -57,7 +57,9 @@ std::vector<Eigen::Vector2d> hull2d(std::vector<Eigen::Vector2d> p) {
 
 struct PlaneFrame {
   Eigen::Vector3d origin, e1, e2;
-  explicit PlaneFrame(const Eigen::Vector3d& n, double d) : origin(-d * n) { planeBasis(n, &e1, &e2); }
+  explicit PlaneFrame(const Eigen::Vector3d& n, double d) : origin(-d * n) {
+    planeBasis(n, &e1, &e2);
+  }
   Eigen::Vector2d to2d(const Eigen::Vector3d& p) const {
     return Eigen::Vector2d(e1.dot(p - origin), e2.dot(p - origin));
   }
@@ -292,9 +294,9 @@ std::vector<PlaneObservation> PlaneSegmenter::segment(const PlaneKeyFrameInput& 
     return in;
   };
 
-  for (int attempt = 0; attempt < 2 * cfg.max_planes &&
-                        static_cast<int>(out.size()) < cfg.max_planes &&
-                        static_cast<int>(remaining.size()) >= cfg.min_inliers;
+  for (int attempt = 0;
+       attempt < 2 * cfg.max_planes && static_cast<int>(out.size()) < cfg.max_planes &&
+       static_cast<int>(remaining.size()) >= cfg.min_inliers;
        ++attempt) {
     std::uniform_int_distribution<size_t> pick(0, remaining.size() - 1);
     int best_count = 0;
@@ -332,9 +334,9 @@ std::vector<PlaneObservation> PlaneSegmenter::segment(const PlaneKeyFrameInput& 
     const std::vector<int>& drop = static_cast<int>(kept.size()) >= cfg.min_inliers ? kept : in;
     std::vector<char> taken(pts.size(), 0);
     for (int i : drop) taken[i] = 1;
-    remaining.erase(std::remove_if(remaining.begin(), remaining.end(),
-                                   [&](int i) { return taken[i] != 0; }),
-                    remaining.end());
+    remaining.erase(
+        std::remove_if(remaining.begin(), remaining.end(), [&](int i) { return taken[i] != 0; }),
+        remaining.end());
     if (static_cast<int>(kept.size()) < cfg.min_inliers) continue;
 
     PlaneObservation obs;
@@ -532,8 +534,8 @@ PlaneMapUpdate PlaneMap::integrate(const PlaneKeyFrameInput& input,
   update.created.erase(std::remove_if(update.created.begin(), update.created.end(), gone),
                        update.created.end());
   for (PlaneId id : touched) {
-    if (!gone(id) && std::find(update.created.begin(), update.created.end(), id) ==
-                         update.created.end()) {
+    if (!gone(id) &&
+        std::find(update.created.begin(), update.created.end(), id) == update.created.end()) {
       update.updated.push_back(id);
     }
   }

@@ -48,8 +48,8 @@ std::optional<Eigen::Vector3d> analyticFloorHit(const SE3& T_w_c, const Eigen::M
   const SE3 T_c_w = T_w_c.inverse();
   const Eigen::Matrix3d R = T_c_w.linear();
   const Eigen::Vector3d t = T_c_w.translation();
-  const Eigen::Vector3d l_w = R.transpose() * K.inverse() * Eigen::Vector3d(uv.x(), uv.y(), 1.0) -
-                              R.transpose() * t;
+  const Eigen::Vector3d l_w =
+      R.transpose() * K.inverse() * Eigen::Vector3d(uv.x(), uv.y(), 1.0) - R.transpose() * t;
   const Eigen::Vector3d c = -R.transpose() * t;
   const Eigen::Vector3d dir = l_w - c;
   if (dir.z() >= 0.0) return std::nullopt;
@@ -202,8 +202,8 @@ TEST(GridTest, BoundaryWithMargin) {
 TEST(GridTest, NearestPlaneOccludes) {
   // Floor z = 0 for x in [-1, 20]; a wall x = 5 facing the camera, y in [-3, 3], z in [0, 3].
   const Plane floor = floorPlane(1, -1, 20, -3, 3);
-  const Plane wall = rectangle(2, -Eigen::Vector3d::UnitX(), 5.0,
-                               {{5, -3, 0}, {5, 3, 0}, {5, 3, 3}, {5, -3, 3}});
+  const Plane wall =
+      rectangle(2, -Eigen::Vector3d::UnitX(), 5.0, {{5, -3, 0}, {5, 3, 0}, {5, 3, 3}, {5, -3, 3}});
   GridConfig config;
   const GridConnection grid(config, camera640());
   const GridPlanes planes({floor, wall}, 0.0);
@@ -224,25 +224,25 @@ TEST(GridTest, NearestPlaneOccludes) {
   EXPECT_GT(on_floor, 1000);
   EXPECT_TRUE(grid.isVisible(T_w_c, planes, Eigen::Vector3d(3, 0, 0)));
   EXPECT_TRUE(grid.isVisible(T_w_c, planes, Eigen::Vector3d(5, 0.5, 1.0)));  // on the wall
-  EXPECT_FALSE(grid.isVisible(T_w_c, planes, Eigen::Vector3d(8, 0, 0)));    // behind it
-  EXPECT_FALSE(grid.isVisible(T_w_c, planes, Eigen::Vector3d(-3, 0, 0)));   // behind the camera
-  EXPECT_FALSE(grid.isVisible(T_w_c, planes, Eigen::Vector3d(3, 10, 0)));   // outside the image
+  EXPECT_FALSE(grid.isVisible(T_w_c, planes, Eigen::Vector3d(8, 0, 0)));     // behind it
+  EXPECT_FALSE(grid.isVisible(T_w_c, planes, Eigen::Vector3d(-3, 0, 0)));    // behind the camera
+  EXPECT_FALSE(grid.isVisible(T_w_c, planes, Eigen::Vector3d(3, 10, 0)));    // outside the image
 }
 
 TEST(GridTest, CorridorVisibleCellsAreFast) {
   // 30 m corridor: floor, ceiling, two walls, two end walls.
   std::vector<Plane> planes = {
       floorPlane(1, 0, 30, 0, 2.4),
-      rectangle(2, -Eigen::Vector3d::UnitZ(), 2.7, {{0, 0, 2.7}, {30, 0, 2.7}, {30, 2.4, 2.7},
-                                                    {0, 2.4, 2.7}}),
-      rectangle(3, Eigen::Vector3d::UnitY(), 0.0, {{0, 0, 0}, {30, 0, 0}, {30, 0, 2.7},
-                                                  {0, 0, 2.7}}),
-      rectangle(4, -Eigen::Vector3d::UnitY(), 2.4, {{0, 2.4, 0}, {30, 2.4, 0}, {30, 2.4, 2.7},
-                                                    {0, 2.4, 2.7}}),
-      rectangle(5, Eigen::Vector3d::UnitX(), 0.0, {{0, 0, 0}, {0, 2.4, 0}, {0, 2.4, 2.7},
-                                                  {0, 0, 2.7}}),
-      rectangle(6, -Eigen::Vector3d::UnitX(), 30.0, {{30, 0, 0}, {30, 2.4, 0}, {30, 2.4, 2.7},
-                                                     {30, 0, 2.7}}),
+      rectangle(2, -Eigen::Vector3d::UnitZ(), 2.7,
+                {{0, 0, 2.7}, {30, 0, 2.7}, {30, 2.4, 2.7}, {0, 2.4, 2.7}}),
+      rectangle(3, Eigen::Vector3d::UnitY(), 0.0,
+                {{0, 0, 0}, {30, 0, 0}, {30, 0, 2.7}, {0, 0, 2.7}}),
+      rectangle(4, -Eigen::Vector3d::UnitY(), 2.4,
+                {{0, 2.4, 0}, {30, 2.4, 0}, {30, 2.4, 2.7}, {0, 2.4, 2.7}}),
+      rectangle(5, Eigen::Vector3d::UnitX(), 0.0,
+                {{0, 0, 0}, {0, 2.4, 0}, {0, 2.4, 2.7}, {0, 0, 2.7}}),
+      rectangle(6, -Eigen::Vector3d::UnitX(), 30.0,
+                {{30, 0, 0}, {30, 2.4, 0}, {30, 2.4, 2.7}, {30, 0, 2.7}}),
   };
   GridConfig config;
   const GridConnection grid(config, camera640());

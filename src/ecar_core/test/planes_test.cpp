@@ -56,8 +56,9 @@ std::vector<Patch> corridor(double x0, double x1, int per_patch) {
   const double L = x1 - x0;
   const Eigen::Vector3d o(x0, 0, 0);
   return {
-      {o, Eigen::Vector3d(L, 0, 0), Eigen::Vector3d(0, 2.4, 0), per_patch},                 // floor
-      {o + Eigen::Vector3d(0, 0, 2.7), Eigen::Vector3d(L, 0, 0), Eigen::Vector3d(0, 2.4, 0),  // ceiling
+      {o, Eigen::Vector3d(L, 0, 0), Eigen::Vector3d(0, 2.4, 0), per_patch},  // floor
+      {o + Eigen::Vector3d(0, 0, 2.7), Eigen::Vector3d(L, 0, 0),
+       Eigen::Vector3d(0, 2.4, 0),  // ceiling
        per_patch},
       {o, Eigen::Vector3d(L, 0, 0), Eigen::Vector3d(0, 0, 2.7), per_patch},  // wall y = 0
       {o + Eigen::Vector3d(0, 2.4, 0), Eigen::Vector3d(L, 0, 0), Eigen::Vector3d(0, 0, 2.7),
@@ -102,7 +103,8 @@ PlaneKeyFrameInput inputOf(uint32_t keyframe, const Cloud& cloud, const Eigen::V
   return in;
 }
 
-/// Checks the four corridor planes of a segmentation in a map rotated by R_m (map = R_m world + t_m).
+/// Checks the four corridor planes of a segmentation in a map rotated by R_m (map = R_m world +
+/// t_m).
 void expectCorridor(const std::vector<PlaneObservation>& obs, const Cloud& cloud,
                     const Eigen::Matrix3d& R_m, const Eigen::Vector3d& t_m, double length) {
   ASSERT_EQ(obs.size(), 4u);
@@ -143,8 +145,8 @@ TEST(PlanesTest, CorridorFloorWallsCeilingWithNoiseAndOutliers) {
   const Cloud cloud = makeCloud(corridor(0.0, 6.0, 300), 120, Eigen::Vector3d(0, 0, 0),
                                 Eigen::Vector3d(6, 2.4, 2.7), 0.01, 1, 7);
   PlaneSegmenter segmenter{PlaneConfig()};
-  const auto obs = segmenter.segment(inputOf(1, cloud, Eigen::Vector3d(1, 1.2, 1.5),
-                                             Eigen::Vector3d::UnitZ()));
+  const auto obs =
+      segmenter.segment(inputOf(1, cloud, Eigen::Vector3d(1, 1.2, 1.5), Eigen::Vector3d::UnitZ()));
   expectCorridor(obs, cloud, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), 6.0);
 }
 
@@ -189,15 +191,15 @@ TEST(PlanesTest, RoomWithRampLabelsEverySurface) {
       {Eigen::Vector3d(0, D, 0), Eigen::Vector3d(W, 0, 0), Eigen::Vector3d(0, 0, H), 250},
       {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0, D, 0), Eigen::Vector3d(0, 0, H), 250},
       {Eigen::Vector3d(W, 0, 0), Eigen::Vector3d(0, D, 0), Eigen::Vector3d(0, 0, H), 250},
-      {Eigen::Vector3d(2, 1.5, 0.3), Eigen::Vector3d(1.2 * std::cos(35 * kDeg), 0,
-                                                     1.2 * std::sin(35 * kDeg)),
+      {Eigen::Vector3d(2, 1.5, 0.3),
+       Eigen::Vector3d(1.2 * std::cos(35 * kDeg), 0, 1.2 * std::sin(35 * kDeg)),
        Eigen::Vector3d(0, 1.0, 0), 120},
   };
   const Cloud cloud =
       makeCloud(patches, 150, Eigen::Vector3d::Zero(), Eigen::Vector3d(W, D, H), 0.01, 1, 3);
   PlaneSegmenter segmenter{PlaneConfig()};
-  const auto obs = segmenter.segment(inputOf(9, cloud, Eigen::Vector3d(2.5, 2.0, 1.6),
-                                             Eigen::Vector3d::UnitZ()));
+  const auto obs = segmenter.segment(
+      inputOf(9, cloud, Eigen::Vector3d(2.5, 2.0, 1.6), Eigen::Vector3d::UnitZ()));
   std::map<PlaneLabel, int> labels;
   for (const auto& o : obs) ++labels[o.label];
   EXPECT_EQ(obs.size(), 7u);
@@ -239,8 +241,8 @@ TEST(PlanesTest, FarCoplanarStraysAreNotPartOfThePlane) {
        {Eigen::Vector3d(13, 0, 0), Eigen::Vector3d(3, 0, 0), Eigen::Vector3d(0, 3, 0), 30}},
       0, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), 0.005, 1, 2);
   PlaneSegmenter segmenter{PlaneConfig()};
-  const auto obs = segmenter.segment(inputOf(1, cloud, Eigen::Vector3d(1.5, 1.5, 1.5),
-                                             Eigen::Vector3d::UnitZ()));
+  const auto obs = segmenter.segment(
+      inputOf(1, cloud, Eigen::Vector3d(1.5, 1.5, 1.5), Eigen::Vector3d::UnitZ()));
   ASSERT_EQ(obs.size(), 1u);
   EXPECT_EQ(obs[0].inliers.size(), 300u);
   for (const auto& v : obs[0].boundary) EXPECT_LT(v.x(), 3.01);
@@ -296,8 +298,7 @@ TEST(PlaneMapTest, SamePlaneFromTwoKeyFramesMerges) {
   EXPECT_GT(p2.num_points, p1.num_points);
   EXPECT_EQ(map.pointsOfPlane(floor).size(), 540u);
   EXPECT_EQ(map.keyframesOfPlane(floor), (std::vector<KeyFrameId>{KeyFrameId(1), KeyFrameId(2)}));
-  EXPECT_EQ(map.planesOfKeyFrame(KeyFrameId(1)),
-            std::vector<PlaneId>{floor});
+  EXPECT_EQ(map.planesOfKeyFrame(KeyFrameId(1)), std::vector<PlaneId>{floor});
   EXPECT_EQ(map.planeOfPoint(MapPointId(1000)), floor);
   EXPECT_NEAR(p2.offset, 0.0, 0.005);
   // The boundary now spans both views (area close to 7 x 2.4).
@@ -359,8 +360,7 @@ TEST(PlaneMapTest, CorridorWalkKeepsFourPlanes) {
     for (const auto& p : all.points) {
       if (p.p_w.x() >= x0 && p.p_w.x() <= x0 + 6.0) view.points.push_back(p);
     }
-    addKeyFrame(&map, segmenter, static_cast<uint32_t>(k + 1), view,
-                Eigen::Vector3d(x0, 1.2, 1.5));
+    addKeyFrame(&map, segmenter, static_cast<uint32_t>(k + 1), view, Eigen::Vector3d(x0, 1.2, 1.5));
   }
   const auto planes = map.planes();
   ASSERT_EQ(planes.size(), 4u);
@@ -440,8 +440,8 @@ TEST(PlanesTest, ConfigValidationNamesTheKey) {
 }
 
 TEST(PlanesTest, HullIsCounterClockwiseAboutTheNormal) {
-  const std::vector<Eigen::Vector3d> square = {
-      {0, 0, 1}, {1, 1, 1}, {1, 0, 1}, {0.5, 0.5, 1}, {0, 1, 1}, {0.2, 0.7, 1}};
+  const std::vector<Eigen::Vector3d> square = {{0, 0, 1},     {1, 1, 1}, {1, 0, 1},
+                                               {0.5, 0.5, 1}, {0, 1, 1}, {0.2, 0.7, 1}};
   for (const double sign : {1.0, -1.0}) {
     const Eigen::Vector3d n(0, 0, sign);
     const auto hull = planeHull(square, n, -sign);

@@ -147,9 +147,9 @@ class PlaneSegmenter {
 
 /// What PlaneMap::integrate changed.
 struct PlaneMapUpdate {
-  std::vector<PlaneId> created;  ///< new planes
-  std::vector<PlaneId> updated;  ///< re-estimated planes (version incremented)
-  std::vector<PlaneId> removed;  ///< planes merged into another one (gone)
+  std::vector<PlaneId> created;          ///< new planes
+  std::vector<PlaneId> updated;          ///< re-estimated planes (version incremented)
+  std::vector<PlaneId> removed;          ///< planes merged into another one (gone)
   std::vector<PlaneId> keyframe_planes;  ///< the keyframe's planes after the update
 };
 
@@ -229,11 +229,11 @@ class PlaneMap {
 
   PlaneConfig config_;
   mutable std::shared_mutex mutex_;
-  std::unordered_map<PlaneId, Entry> planes_;                          // GUARDED_BY(mutex_)
-  std::unordered_map<MapPointId, PlaneId> point_owner_;                // GUARDED_BY(mutex_)
+  std::unordered_map<PlaneId, Entry> planes_;                             // GUARDED_BY(mutex_)
+  std::unordered_map<MapPointId, PlaneId> point_owner_;                   // GUARDED_BY(mutex_)
   std::unordered_map<KeyFrameId, std::vector<PlaneId>> keyframe_planes_;  // GUARDED_BY(mutex_)
-  uint32_t next_id_ = 1;                                               // GUARDED_BY(mutex_)
-  uint64_t revision_ = 0;                                              // GUARDED_BY(mutex_)
+  uint32_t next_id_ = 1;                                                  // GUARDED_BY(mutex_)
+  uint64_t revision_ = 0;                                                 // GUARDED_BY(mutex_)
 };
 
 }  // namespace ecar
