@@ -1,10 +1,12 @@
 #include "ecar_core/planes.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <map>
 #include <random>
 #include <set>
+#include <thread>
 
 #include <gtest/gtest.h>
 
@@ -380,6 +382,65 @@ TEST(PlaneMapTest, CorridorWalkKeepsFourPlanes) {
   EXPECT_EQ(labels[PlaneLabel::kFloor], 1);
   EXPECT_EQ(labels[PlaneLabel::kCeiling], 1);
   EXPECT_EQ(labels[PlaneLabel::kWall], 2);
+}
+
+TEST(PlaneMapTest, PointsMovedOffThePlaneLeaveIt) {
+  const PlaneConfig config;
+  PlaneSegmenter segmenter(config);
+  PlaneMap map(config);
+  Cloud cloud = floorCloud(0.0, 4.0, 0.0, 300, 1, 1);
+  const auto u1 = addKeyFrame(&map, segmenter, 1, cloud, Eigen::Vector3d(1, 1.2, 1.5));
+  ASSERT_EQ(u1.created.size(), 1u);
+  // Bundle adjustment moved 20 points 0.5 m up: the next keyframe brings their new positions.
+  for (int i = 0; i < 20; ++i) cloud.points[i].p_w.z() += 0.5;
+  const auto u2 = addKeyFrame(&map, segmenter, 2, cloud, Eigen::Vector3d(2, 1.2, 1.5));
+  ASSERT_EQ(u2.updated, u1.created);
+  const Plane p = *map.plane(u1.created[0]);
+  EXPECT_EQ(p.num_points, 280u);
+  EXPECT_EQ(p.version, 2u);
+  EXPECT_FALSE(map.planeOfPoint(MapPointId(1)).has_value());
+  EXPECT_EQ(map.planeOfPoint(MapPointId(21)), u1.created[0]);
+  EXPECT_NEAR(p.offset, 0.0, 0.005);
+}
+
+TEST(PlaneMapTest, ReadersCopyWhileAWriterIntegrates) {
+  const PlaneConfig config;
+  PlaneSegmenter segmenter(config);
+  PlaneMap map(config);
+  const Cloud all = makeCloud(corridor(0.0, 20.0, 800), 0, Eigen::Vector3d::Zero(),
+                              Eigen::Vector3d::Zero(), 0.01, 1, 4);
+  std::vector<PlaneKeyFrameInput> inputs;
+  std::vector<std::vector<PlaneObservation>> observations;
+  for (int k = 0; k < 8; ++k) {
+    Cloud view;
+    for (const auto& p : all.points) {
+      if (p.p_w.x() >= 2.0 * k && p.p_w.x() <= 2.0 * k + 6.0) view.points.push_back(p);
+    }
+    inputs.push_back(inputOf(static_cast<uint32_t>(k + 1), view, Eigen::Vector3d(2.0 * k, 1.2, 1.5),
+                             Eigen::Vector3d::UnitZ()));
+    observations.push_back(segmenter.segment(inputs.back()));
+  }
+  std::atomic<bool> done{false};
+  std::atomic<int> bad{0}, reads{0};
+  auto reader = [&]() {
+    while (!done.load()) {
+      for (const Plane& p : map.planes()) {
+        if (std::abs(p.normal.norm() - 1.0) > 1e-9 || p.boundary.size() < 3 ||
+            p.num_points < static_cast<uint32_t>(config.min_inliers)) {
+          ++bad;
+        }
+      }
+      ++reads;
+    }
+  };
+  std::thread r1(reader), r2(reader);
+  for (size_t k = 0; k < inputs.size(); ++k) map.integrate(inputs[k], observations[k]);
+  done = true;
+  r1.join();
+  r2.join();
+  EXPECT_EQ(bad.load(), 0);
+  EXPECT_GT(reads.load(), 0);
+  EXPECT_EQ(map.size(), 4u);
 }
 
 TEST(PlaneMapTest, SaveLoadRoundTrip) {
