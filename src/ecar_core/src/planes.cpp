@@ -269,19 +269,15 @@ std::vector<PlaneObservation> PlaneSegmenter::segment(const PlaneKeyFrameInput& 
   }
   const Eigen::Vector3d up = input.up_w.normalized();
   const PlaneConfig& cfg = config_;
-  std::vector<Eigen::Vector3d> pts;
-  std::vector<int> remaining;
-  pts.reserve(input.points.size());
-  for (const auto& p : input.points) {
-    if (!p.p_w.allFinite()) continue;
-    remaining.push_back(static_cast<int>(pts.size()));
-    pts.push_back(p.p_w);
-  }
-  std::vector<int> source;  // pts index -> input index
-  source.reserve(pts.size());
+  std::vector<Eigen::Vector3d> pts;  // the finite input points
+  std::vector<int> source;           // pts index -> input index
   for (size_t i = 0; i < input.points.size(); ++i) {
-    if (input.points[i].p_w.allFinite()) source.push_back(static_cast<int>(i));
+    if (!input.points[i].p_w.allFinite()) continue;
+    pts.push_back(input.points[i].p_w);
+    source.push_back(static_cast<int>(i));
   }
+  std::vector<int> remaining(pts.size());
+  for (size_t i = 0; i < pts.size(); ++i) remaining[i] = static_cast<int>(i);
 
   std::mt19937 rng(cfg.seed ^ (input.keyframe.value * 0x9E3779B9u));
   std::vector<PlaneObservation> out;
@@ -381,39 +377,41 @@ bool PlaneMap::matches(const Entry& entry, const std::vector<Eigen::Vector3d>& p
 void PlaneMap::reestimate(Entry* entry, const Eigen::Vector3d& camera_center_w,
                           const Eigen::Vector3d& up_w) {
   Plane& plane = entry->plane;
+  std::vector<Eigen::Vector3d> pts;
   auto fit = [&]() {
-    std::vector<Eigen::Vector3d> pts;
-    pts.reserve(entry->points.size());
+    pts.clear();
     for (const auto& kv : entry->points) pts.push_back(kv.second);
-    if (pts.size() < 3) return pts;
+    if (pts.size() < 3) return;
     Eigen::Vector3d n;
     double d;
     fitPlane(pts, &n, &d);
-    if (n.dot(plane.normal) < 0.0) {
+    if (n.dot(plane.normal) < 0.0) {  // keep the side it was seen from
       n = -n;
       d = -d;
     }
     plane.normal = n;
     plane.offset = d;
-    return pts;
   };
-  fit();
   const double keep = config_.keep_factor * config_.distance_threshold;
-  bool dropped = false;
-  for (auto it = entry->points.begin(); it != entry->points.end();) {
-    if (std::abs(plane.signedDistance(it->second)) > keep) {
-      point_owner_.erase(it->first);
-      it = entry->points.erase(it);
-      dropped = true;
-    } else {
-      ++it;
+  auto dropFar = [&](double limit) {
+    bool dropped = false;
+    for (auto it = entry->points.begin(); it != entry->points.end();) {
+      if (std::abs(plane.signedDistance(it->second)) > limit) {
+        point_owner_.erase(it->first);
+        it = entry->points.erase(it);
+        dropped = true;
+      } else {
+        ++it;
+      }
     }
-  }
-  const std::vector<Eigen::Vector3d> pts = dropped ? fit() : [&]() {
-    std::vector<Eigen::Vector3d> v;
-    for (const auto& kv : entry->points) v.push_back(kv.second);
-    return v;
-  }();
+    return dropped;
+  };
+  // Points far from the current estimate (moved by bundle adjustment) leave
+  // before the fit, so that they cannot tilt it (leniently: points just merged
+  // in may lie up to merge_distance off it); then strictly after it.
+  dropFar(keep + config_.merge_distance);
+  fit();
+  if (dropFar(keep)) fit();
   plane.boundary = planeHull(pts, plane.normal, plane.offset);
   plane.label = labelPlane(plane.normal, plane.offset, camera_center_w, up_w, config_);
   plane.num_points = static_cast<uint32_t>(entry->points.size());

@@ -37,8 +37,9 @@
 namespace ecar {
 
 struct GridConfig {
-  int window = 5;                ///< px between sampled pixels, in u and in v
-  double max_distance = 40.0;    ///< m: hits farther from the camera centre are ignored
+  int window = 5;  ///< px between sampled pixels, in u and in v
+  /// m: hits farther from the camera centre are ignored (40: a 30 m corridor end to end).
+  double max_distance = 40.0;
   double cell_size = 0.1;        ///< m: edge of a grid cell
   double boundary_margin = 0.1;  ///< m: a hit may lie this far outside a plane's boundary
 

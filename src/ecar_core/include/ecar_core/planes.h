@@ -48,7 +48,7 @@ struct Plane {
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  ///< unit, map frame
   double offset = 0.0;                                ///< d in n.x + d = 0, m
   std::vector<Eigen::Vector3d> boundary;              ///< convex, counter-clockwise about n; map, m
-  uint32_t version = 0;                               ///< increments on every re-estimate
+  uint32_t version = 0;                               ///< 1 when created, +1 per re-estimate
   uint32_t num_points = 0;                            ///< inlier map points
 
   /// Signed distance of p_w to the plane (positive on the normal's side), m.
