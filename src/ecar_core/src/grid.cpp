@@ -192,10 +192,18 @@ bool GridConnection::isVisible(const SE3& T_w_c, const GridPlanes& planes,
   const auto uv = camera_.project(p_c);
   if (!uv || !camera_.inImage(*uv)) return false;
   const Eigen::Vector3d o = T_w_c.translation();
-  const double distance = (p_w - o).norm();
+  const Eigen::Vector3d dir = p_w - o;  // s = 1 at p_w
+  const double distance = dir.norm();
   if (distance > config_.max_distance) return false;
-  const auto hit = planes.intersect(o, p_w - o, distance);
-  return !hit || hit->distance >= distance - tolerance;
+  const double s_max = 1.0 - tolerance / distance;
+  for (const GridPlanes::Prepared& p : planes.planes_) {
+    // The plane p_w lies on (seen at a grazing angle, a millimetre off it is
+    // centimetres along the ray) cannot hide it.
+    if (std::abs(p.n.dot(p_w) + p.d) <= tolerance) continue;
+    const double s = -(p.n.dot(o) + p.d) / p.n.dot(dir);
+    if (s > kMinRayParameter && s < s_max && GridPlanes::inside(p, o + s * dir)) return false;
+  }
+  return true;
 }
 
 // ---------------------------------------------------------------- GridMap

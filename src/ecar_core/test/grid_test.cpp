@@ -258,6 +258,15 @@ TEST(GridTest, CorridorVisibleCellsAreFast) {
   // The far end wall is seen.
   EXPECT_TRUE(std::any_of(hits.begin(), hits.end(),
                           [](const SampleHit& h) { return h.plane == PlaneId(6); }));
+  // A VO on the floor 25 m away, 3 mm below the plane: visible (the floor it lies
+  // on does not hide it at the grazing angle); the same spot seen from behind the
+  // far end wall is not.
+  EXPECT_TRUE(grid.isVisible(T_w_c, prepared, Eigen::Vector3d(26.0, 1.2, -0.003)));
+  EXPECT_TRUE(grid.isVisible(T_w_c, prepared, Eigen::Vector3d(29.0, 0.0, 1.0)));  // on a wall
+  const SE3 outside = lookAt(Eigen::Vector3d(35, 1.2, 1.5), Eigen::Vector3d(20, 1.2, 0.0));
+  EXPECT_FALSE(grid.isVisible(outside, prepared, Eigen::Vector3d(26.0, 1.2, 0.0)));
+  EXPECT_TRUE(
+      grid.isVisible(outside, GridPlanes({planes[0]}, 0.1), Eigen::Vector3d(26.0, 1.2, 0.0)));
   const int runs = 50;
   const auto t0 = std::chrono::steady_clock::now();
   for (int i = 0; i < runs; ++i) grid.visibleCells(T_w_c, prepared, &cells);

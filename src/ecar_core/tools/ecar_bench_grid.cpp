@@ -126,6 +126,28 @@ int run(int argc, char** argv) {
             << "  GridPlanes    " << 1e3 * prepare_ms << " us to prepare " << planes.size()
             << " planes\n";
 
+  // ---- coverage: share of the corridor's floor cells hit, by distance, from
+  // x = 0.5 looking straight down the corridor (what the sampling reaches).
+  const ecar::SE3 T_end =
+      ecar::lookAt(Eigen::Vector3d(0.5, 1.2, 1.5), Eigen::Vector3d(30.0, 1.2, 1.5));
+  grid.visibleCells(T_end, prepared, &cells);
+  std::cout << "  floor cells hit from x = 0.5 m looking along the corridor (exact / within 1 "
+               "cell):";
+  for (int band = 0; band < 30; band += 5) {
+    int total = 0, hit = 0, near = 0;
+    for (int x = band * 10; x < (band + 5) * 10; ++x) {
+      for (int y = 0; y < 24; ++y) {
+        if (x < 5) continue;  // behind the camera
+        ++total;
+        hit += ecar::containsCell(cells, ecar::CellKey{x, y, 0});
+        near += ecar::containsCell(cells, ecar::CellKey{x, y, 0}, 1);
+      }
+    }
+    std::cout << " [" << band << ", " << band + 5 << ") m " << 100 * hit / std::max(1, total)
+              << "% / " << 100 * near / std::max(1, total) << "%;";
+  }
+  std::cout << "\n";
+
   // ---- plane segmentation on one keyframe's points
   std::mt19937 rng(1);
   std::uniform_real_distribution<double> u(0.0, 1.0);

@@ -138,10 +138,13 @@ class GridConnection {
   /// a hit are left out). `hits` is overwritten.
   void castSamples(const SE3& T_w_c, const GridPlanes& planes, std::vector<SampleHit>* hits) const;
 
-  /// True when p_w projects into the image from T_w_c, lies within max_distance in
-  /// front of the camera, and no plane hit on the way to it is nearer than
-  /// |p_w - centre| - tolerance (tolerance in m). An exact per-point test (e.g.
-  /// for a VO's position) without the sampling's gaps at long range.
+  /// True when p_w projects into the image from T_w_c, lies within max_distance,
+  /// and no plane hides it: a plane hides p_w when the segment from the camera
+  /// centre to p_w crosses it inside its boundary more than `tolerance` (m) before
+  /// p_w; the planes p_w lies on (closer than tolerance) never hide it. An exact
+  /// per-point test (e.g. for a VO's position) without the sampling's gaps: at
+  /// 20-30 m along a corridor the 5 px samples hit only a few percent of the
+  /// floor cells (ecar_bench_grid prints the coverage).
   bool isVisible(const SE3& T_w_c, const GridPlanes& planes, const Eigen::Vector3d& p_w,
                  double tolerance = 0.05) const;
 
