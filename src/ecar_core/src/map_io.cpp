@@ -3,7 +3,9 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
+#include <atomic>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -268,7 +270,10 @@ std::vector<uint8_t> MapFileWriter::serialize() const {
 
 void MapFileWriter::write(const std::string& path) const {
   const std::vector<uint8_t> bytes = serialize();
-  const std::string tmp = path + ".tmp";
+  // A name of its own per write: two writers of one path never share it.
+  static std::atomic<uint32_t> writes{0};
+  const std::string tmp =
+      path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(writes++);
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) throw Error("map file " + quoted(tmp) + ": cannot create: " + errnoText());
   if (!writeAll(fd, bytes) || ::fsync(fd) != 0) {
@@ -444,6 +449,13 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& camera) 
     out.u8(static_cast<uint8_t>((kf.bad ? 1 : 0) | (f.gravity_c ? 2 : 0) | (f.T_o_c ? 4 : 0)));
     if (f.gravity_c) out.vec3(*f.gravity_c);
     if (f.T_o_c) out.se3(*f.T_o_c);
+    const bool has_descriptors = !f.descriptors.empty();
+    if (has_descriptors && (f.descriptors.rows != static_cast<int>(f.keypoints.size()) ||
+                            f.descriptors.cols != static_cast<int>(kDescriptorBytes) ||
+                            f.descriptors.type() != CV_8U)) {
+      throw Error("encodeSlamMap: keyframe " + std::to_string(id.value) +
+                  " has descriptors unlike its keypoints (not N x 32 CV_8U)");
+    }
     out.u32(static_cast<uint32_t>(f.keypoints.size()));
     for (const cv::KeyPoint& k : f.keypoints) {
       out.f32(k.pt.x);
@@ -454,8 +466,8 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& camera) 
       out.i32(k.octave);
     }
     // Descriptors: one 32-byte row per keypoint (none when the matrix is empty).
-    out.u8(f.descriptors.empty() ? 0 : 1);
-    for (int r = 0; r < f.descriptors.rows; ++r) {
+    out.u8(has_descriptors ? 1 : 0);
+    for (int r = 0; has_descriptors && r < f.descriptors.rows; ++r) {
       out.bytes(f.descriptors.ptr<uint8_t>(r), kDescriptorBytes);
     }
     for (const MapPointId pid : kf.points) out.u32(pid.value);
@@ -476,6 +488,11 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& camera) 
     out.i32(p.found);
     out.u32(p.version);
     const bool has_descriptor = !p.descriptor.empty();
+    if (has_descriptor && (p.descriptor.total() != kDescriptorBytes ||
+                           p.descriptor.type() != CV_8U || !p.descriptor.isContinuous())) {
+      throw Error("encodeSlamMap: point " + std::to_string(id.value) +
+                  " has a descriptor other than 1 x 32 CV_8U");
+    }
     out.u8(static_cast<uint8_t>((p.bad ? 1 : 0) | (has_descriptor ? 2 : 0)));
     if (has_descriptor) out.bytes(p.descriptor.ptr<uint8_t>(0), kDescriptorBytes);
     out.u32(static_cast<uint32_t>(p.observations.size()));

@@ -140,9 +140,10 @@ class MapFileWriter {
   void addSection(const std::string& name, std::vector<uint8_t> bytes);
   /// The whole file.
   std::vector<uint8_t> serialize() const;
-  /// Writes serialize() to `path + ".tmp"`, flushes it to disk and renames it
-  /// over `path`: a reader sees the old file or the new one, never a part.
-  /// Throws ecar::Error naming the file and the system error.
+  /// Writes serialize() to a temporary file beside `path` (`path`.tmp.<pid>.<n>),
+  /// flushes it to disk and renames it over `path`: a reader sees the old file
+  /// or the new one, never a part. Throws ecar::Error naming the file and the
+  /// system error (the temporary file is removed).
   void write(const std::string& path) const;
 
  private:

@@ -233,6 +233,7 @@ class SlamSystem {
   ~SlamSystem();
   /// Tracker of a device, created on first use. Different devices may be
   /// tracked from different threads at once; one device from one thread.
+  /// Track through SlamSystem::track(), which installMap() waits for.
   Tracker& tracker(DeviceId device);
   /// Forgets a device's tracker (its motion model, lost state, initialisation
   /// views); its keyframes stay in the map. The caller makes sure no thread is
@@ -266,7 +267,8 @@ class SlamSystem {
   /// Swaps a decoded map in: waits for running track() calls and blocks new
   /// ones, drops the mapper's queue, takes the map's contents, moves the epoch
   /// past both maps', rebuilds the place and keypoint indexes, and resets
-  /// every tracker so that it relocalises against the new map.
+  /// every tracker so that it relocalises against the new map. Not from the
+  /// mapped callback (it may run inside track()).
   void installMap(std::unique_ptr<Map> map);
 
   Map& map() { return map_; }
