@@ -420,6 +420,20 @@ std::vector<uint8_t> MapFileReader::section(const std::string& section) const {
 }
 
 // ---------------------------------------------------------------- the SLAM map
+//
+// Layout of the "slam" section (version kSlamSectionVersion):
+//   u32 version; camera: i32 width, i32 height, f64 fx, fy, cx, cy, f64 x5
+//   distortion; u32 pyramid levels, f32 scale per level; u32 epoch, u32 next
+//   keyframe id, u32 next point id;
+//   u32 keyframe count, each: u32 id, u32 device, u32 frame index,
+//     f64 timestamp, se3 T_c_w, u8 flags (1 bad, 2 gravity, 4 odometry),
+//     [vec3 gravity_c], [se3 T_o_c], u32 N, N x (f32 x, y, size, angle,
+//     response, i32 octave), u8 descriptors present, [N x 32 bytes],
+//     N x u32 point id (0: none);
+//   u32 point count, each: u32 id, vec3 p_w, vec3 normal, f32 min and max
+//     distance, u32 reference and first keyframe, i32 visible, i32 found,
+//     u32 version, u8 flags (1 bad, 2 descriptor), [32 bytes descriptor],
+//     u32 M, M x (u32 keyframe id, i32 keypoint index).
 
 std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& camera) {
   ByteWriter out;

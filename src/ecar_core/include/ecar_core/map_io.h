@@ -85,7 +85,8 @@ class ByteWriter {
   std::vector<uint8_t> bytes_;
 };
 
-/// Reads what ByteWriter wrote, from a buffer it does not own. Every read
+/// Reads what ByteWriter wrote, from a buffer that outlives it (or that
+/// `owner` keeps alive). Every read
 /// names its field: running past the end, or a value a check rejects, throws
 /// ecar::Error "<context>, <scope>, field '<field>' at byte <offset>: <problem>".
 class ByteReader {
