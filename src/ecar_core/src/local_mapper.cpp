@@ -4,6 +4,8 @@
 #include <cmath>
 #include <unordered_set>
 
+#include "ecar_core/error.h"
+#include "ecar_core/map_io.h"
 #include "ecar_core/matcher.h"
 #include "ecar_core/slam.h"
 
@@ -69,6 +71,17 @@ void LocalMapper::stopThread() {
   stop_ = true;
   queue_cv_.notify_all();
   thread_.join();
+}
+
+void LocalMapper::reset() {
+  const bool threaded = thread_.joinable();
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    queue_.clear();
+  }
+  stopThread();  // finishes the keyframe being mapped, if any
+  recent_points_.clear();
+  if (threaded) startThread();
 }
 
 void LocalMapper::run() {
@@ -476,7 +489,61 @@ void SlamSystem::removeDevice(DeviceId device) {
 TrackResult SlamSystem::track(DeviceId device, const cv::Mat& image, double timestamp,
                               uint32_t frame_index, const std::optional<Eigen::Vector3d>& gravity_c,
                               const std::optional<SE3>& T_o_c) {
+  std::shared_lock<std::shared_mutex> session(session_mutex_);
   return tracker(device).track(image, timestamp, frame_index, gravity_c, T_o_c);
+}
+
+void SlamSystem::saveMap(const std::string& path) const {
+  MapFileWriter writer;
+  writeMapSection(&writer);
+  writer.write(path);
+}
+
+void SlamSystem::loadMap(const std::string& path) {
+  installMap(readMapSection(MapFileReader::open(path)));
+}
+
+void SlamSystem::writeMapSection(MapFileWriter* writer) const {
+  std::vector<uint8_t> bytes;
+  {
+    auto lock = map_.readLock();
+    bytes = encodeSlamMap(map_, camera_);
+  }
+  writer->addSection(kSlamSection, std::move(bytes));
+}
+
+std::unique_ptr<Map> SlamSystem::readMapSection(const MapFileReader& reader) const {
+  return decodeSlamMap(reader.reader(kSlamSection), camera_, map_.scale());
+}
+
+void SlamSystem::installMap(std::unique_ptr<Map> map) {
+  if (!map) throw Error("SlamSystem::installMap: no map");
+  std::unique_lock<std::shared_mutex> session(session_mutex_);  // no track() runs
+  mapper_.reset();
+  std::vector<std::pair<KeyFrameId, cv::Mat>> descriptors;
+  std::vector<std::vector<int>> point_rows;
+  {
+    auto lock = map_.writeLock();
+    map_.replaceWith(std::move(*map));
+    for (const KeyFrameId id : map_.keyframeIds()) {
+      const KeyFrame* kf = map_.keyframe(id);
+      if (kf->features.descriptors.empty()) continue;
+      std::vector<int> rows;
+      for (size_t i = 0; i < kf->points.size(); ++i) {
+        if (map_.point(kf->points[i])) rows.push_back(static_cast<int>(i));
+      }
+      descriptors.emplace_back(id, kf->features.descriptors);
+      point_rows.push_back(std::move(rows));
+    }
+  }
+  index_.clear();
+  keypoint_index_.clear();
+  for (size_t k = 0; k < descriptors.size(); ++k) {
+    index_.add(descriptors[k].first, descriptors[k].second);
+    keypoint_index_.add(descriptors[k].first, descriptors[k].second, point_rows[k]);
+  }
+  std::lock_guard<std::mutex> lock(trackers_mutex_);
+  for (auto& kv : trackers_) kv.second->reset();
 }
 
 }  // namespace ecar

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "ecar_core/error.h"
 #include "ecar_core/features.h"
 
 namespace ecar {
@@ -288,6 +289,57 @@ std::string Map::checkConsistency() const {
     }
   }
   return {};
+}
+
+void Map::insertKeyFrame(KeyFrame kf) {
+  if (!kf.id.valid()) throw Error("Map::insertKeyFrame: invalid keyframe id 0");
+  if (keyframes_.count(kf.id)) {
+    throw Error("Map::insertKeyFrame: keyframe " + std::to_string(kf.id.value) + " is present");
+  }
+  if (kf.points.size() != kf.features.size()) {
+    throw Error("Map::insertKeyFrame: keyframe " + std::to_string(kf.id.value) + " has " +
+                std::to_string(kf.points.size()) + " point slots for " +
+                std::to_string(kf.features.size()) + " keypoints");
+  }
+  const KeyFrameId id = kf.id;
+  keyframes_.emplace(id, std::move(kf));
+}
+
+void Map::insertPoint(MapPoint p) {
+  if (!p.id.valid()) throw Error("Map::insertPoint: invalid point id 0");
+  if (points_.count(p.id)) {
+    throw Error("Map::insertPoint: point " + std::to_string(p.id.value) + " is present");
+  }
+  const MapPointId id = p.id;
+  points_.emplace(id, std::move(p));
+}
+
+void Map::setCounters(KeyFrameId next_keyframe, MapPointId next_point, uint32_t epoch) {
+  for (const auto& kv : keyframes_) {
+    if (!(kv.first < next_keyframe)) {
+      throw Error("Map::setCounters: next keyframe id " + std::to_string(next_keyframe.value) +
+                  " is not above keyframe " + std::to_string(kv.first.value));
+    }
+  }
+  for (const auto& kv : points_) {
+    if (!(kv.first < next_point)) {
+      throw Error("Map::setCounters: next point id " + std::to_string(next_point.value) +
+                  " is not above point " + std::to_string(kv.first.value));
+    }
+  }
+  next_keyframe_ = next_keyframe.value;
+  next_point_ = next_point.value;
+  epoch_ = epoch;
+}
+
+void Map::replaceWith(Map&& other) {
+  keyframes_ = std::move(other.keyframes_);
+  points_ = std::move(other.points_);
+  other.keyframes_.clear();
+  other.points_.clear();
+  next_keyframe_ = other.next_keyframe_;
+  next_point_ = other.next_point_;
+  epoch_ = std::max(epoch_, other.epoch_) + 1;
 }
 
 void Map::clear() {

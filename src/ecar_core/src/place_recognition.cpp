@@ -308,6 +308,16 @@ void PlaceIndex::removeLocked(KeyFrameId id) {
   free_documents_.push_back(document);
 }
 
+void PlaceIndex::clear() {
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  word_slots_ = WordSlots();
+  postings_.clear();
+  documents_.clear();
+  norm_terms_.clear();
+  free_documents_.clear();
+  document_of_.clear();
+}
+
 size_t PlaceIndex::size() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   return document_of_.size();
@@ -494,6 +504,14 @@ void KeypointIndex::removeLocked(KeyFrameId id) {
     free_entries_.push_back(e);
   }
   entries_of_.erase(it);
+}
+
+void KeypointIndex::clear() {
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  entries_.clear();
+  free_entries_.clear();
+  for (auto& bucket : buckets_) bucket.clear();
+  entries_of_.clear();
 }
 
 size_t KeypointIndex::size() const {

@@ -87,6 +87,22 @@ Tracker::Tracker(DeviceId device, Map* map, PlaceIndex* index, LocalMapper* mapp
       config_(config),
       extractor_(config.orb) {}
 
+void Tracker::reset() {
+  state_ = TrackingState::kNotInitialised;
+  current_ = Frame();
+  last_ = Frame();
+  T_c_w_ = last_T_c_w_ = SE3::Identity();
+  matches_.clear();
+  last_matches_.clear();
+  last_inliers_ = 0;
+  inliers_.clear();
+  velocity_.reset();
+  reference_kf_ = KeyFrameId();
+  local_keyframes_.clear();
+  frames_since_keyframe_ = 0;
+  init_candidates_.clear();
+}
+
 TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t frame_index,
                            const std::optional<Eigen::Vector3d>& gravity_c,
                            const std::optional<SE3>& T_o_c) {

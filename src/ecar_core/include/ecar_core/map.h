@@ -114,6 +114,26 @@ class Map {
   void updateCovisibility(KeyFrameId kid);
   void clear();
 
+  // ---- loading a saved map (map_io.h)
+  /// The id the next addKeyFrame() / addPoint() assigns (hold readLock).
+  KeyFrameId nextKeyFrameId() const { return KeyFrameId(next_keyframe_); }
+  MapPointId nextPointId() const { return MapPointId(next_point_); }
+  /// Inserts a keyframe under its own id, as it was saved; its point slots must
+  /// match its keypoints. Throws ecar::Error for an invalid or present id or a
+  /// slot count unlike the keypoints. Hold writeLock (or own an unshared map).
+  void insertKeyFrame(KeyFrame kf);
+  /// Inserts a point under its own id; its observations are taken as they are
+  /// (the keyframes' slots must already hold it). Throws ecar::Error for an
+  /// invalid or present id.
+  void insertPoint(MapPoint p);
+  /// Sets the id counters and the epoch of a loaded map. Throws ecar::Error
+  /// when a counter is not above every id present (ids would be reused).
+  void setCounters(KeyFrameId next_keyframe, MapPointId next_point, uint32_t epoch);
+  /// Takes `other`'s keyframes, points and id counters (leaving it empty) and
+  /// moves the epoch past both maps' epochs, so devices drop what they hold.
+  /// Hold writeLock on this map; `other` must not be shared.
+  void replaceWith(Map&& other);
+
  private:
   ScaleInfo scale_;
   mutable std::shared_mutex mutex_;

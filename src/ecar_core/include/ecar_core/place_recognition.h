@@ -55,6 +55,8 @@ class PlaceIndex {
   void add(KeyFrameId id, const cv::Mat& descriptors);
   /// Removing an id that is not indexed does nothing.
   void remove(KeyFrameId id);
+  /// Removes every keyframe (the map was replaced).
+  void clear();
   size_t size() const;
 
   /// The best `max_results` keyframes for the descriptors, best first; only
@@ -162,6 +164,8 @@ class KeypointIndex {
   /// descriptor type or a row out of range.
   void add(KeyFrameId id, const cv::Mat& descriptors, const std::vector<int>& rows);
   void remove(KeyFrameId id);
+  /// Removes every keyframe (the map was replaced).
+  void clear();
   size_t size() const;  ///< indexed keyframes
   size_t entries() const;
 

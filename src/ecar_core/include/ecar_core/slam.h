@@ -17,6 +17,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <shared_mutex>
 #include <string>
 #include <thread>
 #include <unordered_map>
@@ -102,6 +103,8 @@ struct TrackResult {
 };
 
 class LocalMapper;
+class MapFileReader;
+class MapFileWriter;
 
 class Tracker {
  public:
@@ -116,6 +119,11 @@ class Tracker {
                     const std::optional<SE3>& T_o_c = std::nullopt);
   TrackingState state() const { return state_; }
   int relocalisations() const { return relocalisations_; }
+  /// Forgets the tracking state (last image, motion model, local keyframes,
+  /// initialisation views): the next image relocalises against the map, or
+  /// initialises an empty one. The relocalisation count stays. Not while
+  /// track() runs.
+  void reset();
 
  private:
   bool initialise(TrackResult* result);
@@ -179,7 +187,12 @@ class LocalMapper {
   /// Maps every queued keyframe now (synchronous mode).
   void processPending();
   void startThread();
+  /// Maps the keyframes still queued, then stops the thread.
   void stopThread();
+  /// Drops the queued keyframes and the new points awaiting culling (the map
+  /// was replaced): waits for the keyframe being mapped, and leaves the thread
+  /// running if it was. Call while no tracker can insert keyframes.
+  void reset();
   bool idle() const;
   /// Times of the local bundle adjustments so far (ms).
   std::vector<double> baTimes() const;
@@ -220,14 +233,44 @@ class SlamSystem {
   ~SlamSystem();
   /// Tracker of a device, created on first use. Different devices may be
   /// tracked from different threads at once; one device from one thread.
+  /// Track through SlamSystem::track(), which installMap() waits for.
   Tracker& tracker(DeviceId device);
   /// Forgets a device's tracker (its motion model, lost state, initialisation
   /// views); its keyframes stay in the map. The caller makes sure no thread is
   /// inside track() for that device. The next track() starts a new tracker.
   void removeDevice(DeviceId device);
+  /// Tracks one image of a device (see Tracker::track). Runs alongside other
+  /// devices' track() calls; installMap() waits for it and blocks it.
   TrackResult track(DeviceId device, const cv::Mat& image, double timestamp, uint32_t frame_index,
                     const std::optional<Eigen::Vector3d>& gravity_c = std::nullopt,
                     const std::optional<SE3>& T_o_c = std::nullopt);
+
+  // ---- saving and loading the map (map_io.h). Thread-safe with track().
+  /// Writes the map to a file with one section, "slam" (atomically: a
+  /// temporary file renamed). A snapshot under the map's read lock: trackers
+  /// and the mapper go on. Throws ecar::Error naming the file on I/O errors.
+  void saveMap(const std::string& path) const;
+  /// Replaces the map by the one saved in `path` (readMapSection, then
+  /// installMap). Throws ecar::Error naming the file, section and field when
+  /// the file is missing, foreign, of another version, truncated, corrupted
+  /// (CRC) or inconsistent, or made with another camera; the current map is
+  /// then untouched.
+  void loadMap(const std::string& path);
+  /// Adds the "slam" section (keyframes, points, id counters, epoch, camera)
+  /// to a map file being assembled, so other components can add theirs.
+  void writeMapSection(MapFileWriter* writer) const;
+  /// Decodes the "slam" section of a map file into a new map, with everything
+  /// derived rebuilt (undistorted keypoints, feature grids, covisibility) and
+  /// its consistency checked. Touches nothing of this system; throws
+  /// ecar::Error as loadMap() does.
+  std::unique_ptr<Map> readMapSection(const MapFileReader& reader) const;
+  /// Swaps a decoded map in: waits for running track() calls and blocks new
+  /// ones, drops the mapper's queue, takes the map's contents, moves the epoch
+  /// past both maps', rebuilds the place and keypoint indexes, and resets
+  /// every tracker so that it relocalises against the new map. Not from the
+  /// mapped callback (it may run inside track()).
+  void installMap(std::unique_ptr<Map> map);
+
   Map& map() { return map_; }
   const Map& map() const { return map_; }
   LocalMapper& mapper() { return mapper_; }
@@ -240,6 +283,8 @@ class SlamSystem {
   PlaceIndex index_;
   KeypointIndex keypoint_index_;
   LocalMapper mapper_;
+  /// Shared by track() calls, exclusive while a map is installed.
+  std::shared_mutex session_mutex_;
   std::mutex trackers_mutex_;
   std::unordered_map<DeviceId, std::unique_ptr<Tracker>> trackers_;
 };
