@@ -223,8 +223,9 @@ std::optional<DeviceObjects::Hit> DeviceObjects::cast(const Eigen::Vector2d& uv,
                             : raySegmentDistance(o, dir, vo.position, vo.position, &s);
     if (dist > 0.5 * vo.width + config_.pick_radius) continue;
     if (s <= 0.0 || s > config_.max_distance || s > plane_distance + config_.pick_radius) continue;
-    if (s < best) {
-      best = s;
+    // Among the VOs near the ray (none hidden by a plane), the one nearest to it.
+    if (dist < best) {
+      best = dist;
       picked = &vo;
       picked_s = s;
     }

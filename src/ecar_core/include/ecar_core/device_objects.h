@@ -145,8 +145,10 @@ class DeviceObjects {
   void touch(const TouchInput& touch, const SE3& T_w_c, const PinholeCamera& camera,
              std::vector<VoRequest>* out);
 
-  /// The nearest hit of the pixel's ray: a held VO (object set) when it comes
-  /// first, else a plane (plane set); nullopt when nothing is within max_distance.
+  /// The hit of the pixel's ray: a held VO (object set) when the ray passes
+  /// within half its width + pick_radius of it before the first plane hit (+
+  /// pick_radius), the one nearest to the ray among several; else the nearest
+  /// plane (plane set); nullopt when nothing is within max_distance.
   struct Hit {
     ObjectId object;
     PlaneId plane;
