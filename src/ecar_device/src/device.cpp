@@ -47,6 +47,8 @@ Device::Device(const ros::NodeHandle& nh, const DeviceConfig& config)
   interaction_pub_ = nh_.advertise<ecar_msgs::Interaction>(interaction_topic_, 50);
   touch_sub_ = nh_.subscribe("touch", 50, &Device::onTouch, this);
   result_sub_ = nh_.subscribe("interaction_result", 50, &Device::onInteractionResult, this);
+  direct_objects_sub_ =
+      nh_.subscribe(config_.direct_objects_topic, 100, &Device::onDirectObject, this);
   pose_pub_ = nh_.advertise<geometry_msgs::PoseStamped>("pose", 10);
   device_frame_pub_ = nh_.advertise<ecar_msgs::DeviceFrame>("device_frame", 30);
   metrics_pub_ = nh_.advertise<ecar_msgs::RoundTripMetrics>("metrics", 30);
@@ -457,6 +459,18 @@ void Device::onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg
     ROS_DEBUG("%s: %s", id, what.c_str());
   } else {
     ROS_WARN_THROTTLE(0.5, "%s: %s", id, what.c_str());
+  }
+}
+
+void Device::onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  try {
+    graph_planes_.clear();
+    graph_objects_.assign(1, fromVirtualObject(*msg, "object"));
+    objects_.applyGraph(graph_planes_, graph_objects_);
+  } catch (const ecar::Error& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: %s dropped: %s", config_.device_id.c_str(),
+                      config_.direct_objects_topic.c_str(), e.what());
   }
 }
 

@@ -123,6 +123,7 @@ void DeviceConfig::validate() const {
   }
   if (connect_service.empty()) fail("connect_service", "must not be empty");
   if (global_metrics_topic.empty()) fail("global_metrics_topic", "must not be empty");
+  if (direct_objects_topic.empty()) fail("direct_objects_topic", "must not be empty");
   if (!std::isfinite(touch_pose_timeout) || touch_pose_timeout <= 0.0) {
     fail("touch_pose_timeout", "must be > 0 s");
   }
@@ -165,6 +166,7 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("connect_service", &c.connect_service);
   r.read("global_metrics_topic", &c.global_metrics_topic);
   r.read("touch_pose_timeout", &c.touch_pose_timeout);
+  r.read("direct_objects_topic", &c.direct_objects_topic);
   r.read("keyframe_queue", &c.tracker.keyframe_queue);
   ParamReader t = r.child("tracking");
   t.read("projection_radius", &c.tracker.projection_radius);

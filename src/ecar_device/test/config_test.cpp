@@ -74,6 +74,7 @@ TEST(DeviceConfigTest, ShippedYamlHasOnlyKnownKeysWithTheDefaults) {
   EXPECT_FLOAT_EQ(c.tracker.orb.scale_factor, d.tracker.orb.scale_factor);
   EXPECT_EQ(c.tracker.orb.num_levels, d.tracker.orb.num_levels);
   EXPECT_DOUBLE_EQ(c.touch_pose_timeout, d.touch_pose_timeout);
+  EXPECT_EQ(c.direct_objects_topic, d.direct_objects_topic);
   EXPECT_DOUBLE_EQ(c.objects.segment_length, d.objects.segment_length);
   EXPECT_DOUBLE_EQ(c.objects.min_segment_length, d.objects.min_segment_length);
   EXPECT_DOUBLE_EQ(c.objects.max_distance, d.objects.max_distance);

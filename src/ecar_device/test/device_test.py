@@ -14,6 +14,8 @@
    REGISTER interactions whose lines lie on the floor, ahead of the device, chained, with the
    touch's colour and width; accepted ones come back in a graph; a touch on such a VO sends
    MANIPULATE with its id and base_version, moved along the floor.
+8. vo_share direct: a VO published on /<device>/objects is held (a touch on it sends MANIPULATE);
+   its tombstone removes it (a touch there sends nothing).
 """
 
 import math
@@ -83,6 +85,14 @@ def project(pose, p_w, f=525.0, cx=319.5, cy=239.5):
     return cx + f * p_c[0] / p_c[2], cy + f * p_c[1] / p_c[2]
 
 
+def floor_point(pose, u, v, f=525.0, cx=319.5, cy=239.5):
+    """Where the ray of pixel (u, v) from T_w_c = pose (t, q) meets the floor z = 0."""
+    t, q = pose
+    d = rotate(q, [(u - cx) / f, (v - cy) / f, 1.0])
+    s = -t[2] / d[2]
+    return [t[i] + s * d[i] for i in range(3)]
+
+
 def floor_plane():
     plane = Plane(id=3, label=Plane.FLOOR, offset=0.0, version=1, num_points=500)
     plane.normal.z = 1.0
@@ -128,6 +138,7 @@ class DeviceTest(unittest.TestCase):
         self.interactions = []
         ns = "/" + self.device
         self.touch_pub = rospy.Publisher(ns + "/touch", Touch, queue_size=50)
+        self.direct_pub = rospy.Publisher(ns + "/objects", VirtualObject, queue_size=10)
         self.result_pub = rospy.Publisher(ns + "/interaction_result", InteractionResult,
                                           queue_size=50)
         rospy.Subscriber(ns + "/interaction", Interaction, self.on_interaction)
@@ -363,6 +374,51 @@ class DeviceTest(unittest.TestCase):
         moved = moves[-1].object
         self.assertAlmostEqual(math.hypot(moved.end.x - moved.start.x, moved.end.y - moved.start.y),
                                length, places=6)
+
+        # 9. vo_share direct: a VO relayed on /<device>/objects is held; its tombstone removes it.
+        while self.direct_pub.get_num_connections() == 0:
+            time.sleep(0.05)
+        with self.lock:
+            self.answer = False
+            pose = self.last_pose
+            self.interactions = []
+        time.sleep(0.2)
+        a, b = floor_point(pose, 300.0, 380.0), floor_point(pose, 340.0, 380.0)
+        relayed = VirtualObject(id=200, kind=VirtualObject.LINE, r=0, g=255, b=0, width=0.02,
+                                plane_id=3, owner="device_1", version=4)
+        relayed.start = Point(*a)
+        relayed.end = Point(*b)
+        relayed.position = Point(*[(a[i] + b[i]) / 2 for i in range(3)])
+        relayed.normal.z = 1.0
+        self.direct_pub.publish(relayed)
+        time.sleep(0.2)
+        u, v = project(pose, [relayed.position.x, relayed.position.y, 0.0])
+        self.touch(u, v, Touch.BEGIN)
+        self.touch(u, v, Touch.END)
+        self.wait_for(lambda: len(self.interactions) >= 2, 5.0, "MANIPULATE of the relayed VO")
+        with self.lock:
+            self.assertTrue(all(m.type == Interaction.MANIPULATE and m.object_id == 200 and
+                                m.base_version == 4 for m in self.interactions))
+            self.interactions = []
+        relayed.version = 5
+        relayed.deleted = True
+        self.direct_pub.publish(relayed)
+        with self.lock:
+            self.answer = True
+            self.last_pose = None
+        self.wait_for(lambda: self.last_pose is not None, 5.0, "an OK graph")
+        with self.lock:
+            self.answer = False
+            pose = self.last_pose
+        time.sleep(0.2)
+        # The touch now meets the floor where the VO was: a stroke, no MANIPULATE.
+        u, v = project(pose, [relayed.position.x, relayed.position.y, 0.0])
+        self.touch(u, v, Touch.BEGIN)
+        self.touch(u + 30.0, v, Touch.END)
+        self.wait_for(lambda: len(self.interactions) >= 1, 5.0, "a stroke where the VO was")
+        with self.lock:
+            self.answer = True
+            self.assertTrue(all(m.type == Interaction.REGISTER for m in self.interactions))
 
 
 if __name__ == "__main__":

@@ -22,7 +22,9 @@
 // touch message) on the interaction topic the server names (default
 // `interaction`, ecar_msgs/Interaction); answers on `interaction_result`
 // (ecar_msgs/InteractionResult) are applied, rejections logged with their
-// reason. ar_view draws the held VOs and the strokes in flight. Touch rays
+// reason. VO states relayed straight to the device (vo_share: direct, on
+// ~direct_objects_topic, ecar_msgs/VirtualObject) are held like those of local
+// graphs. ar_view draws the held VOs and the strokes in flight. Touch rays
 // start at the pose of the latest tracked frame, or of the latest OK local
 // graph when that is later (the device's own tracking lost); a BEGIN needs one
 // within ~touch_pose_timeout of the latest camera frame.
@@ -49,6 +51,7 @@
 #include <ecar_msgs/LocalGraph.h>
 #include <ecar_msgs/Touch.h>
 #include <ecar_msgs/Upload.h>
+#include <ecar_msgs/VirtualObject.h>
 
 #include "ecar_core/camera.h"
 #include "ecar_core/device_objects.h"
@@ -74,6 +77,9 @@ struct DeviceConfig {
   /// ~touch_pose_timeout: s; a touch BEGIN needs a pose (tracked frame or local
   /// graph) at most this much older than the latest camera frame
   double touch_pose_timeout = 1.0;
+  /// ~direct_objects_topic: VO states the server relays straight to this device
+  /// (vo_share: direct), relative to the device's namespace
+  std::string direct_objects_topic = "objects";
   ecar::DeviceTrackerConfig tracker;  ///< ~keyframe_queue, ~tracking/..., ~orb/...
   ecar::DeviceObjectsConfig objects;  ///< ~objects/... (touches, VOs, drawing)
 
@@ -119,6 +125,7 @@ class Device {
   void onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg);
   void onTouch(const ecar_msgs::TouchConstPtr& msg);
   void onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg);
+  void onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg);
   void onConnectTimer();
   void onPaceTimer();
 
@@ -187,7 +194,7 @@ class Device {
   ros::Publisher upload_pub_, pose_pub_, device_frame_pub_, metrics_pub_, global_metrics_pub_,
       ar_view_pub_, frame_done_pub_, interaction_pub_;
   ros::Subscriber image_sub_, info_sub_, imu_sub_, odometry_sub_, graph_sub_, touch_sub_,
-      result_sub_;
+      result_sub_, direct_objects_sub_;
   tf2_ros::TransformBroadcaster tf_;
   ros::SteadyTimer pace_timer_;
 
