@@ -281,7 +281,10 @@ void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
   for (const cv::Point2f& p : r.tracked_pixels) {
     cv::circle(ar_image_, p, 3, cv::Scalar(0, 255, 0), 1, cv::LINE_AA);
   }
-  if (tracking_ok_) drawObjects(r.T_w_c);
+  // VOs at the pose touches use (this frame's when tracked), unless it is stale.
+  if (T_w_c_ && (image.header.stamp - pose_stamp_).toSec() <= config_.touch_pose_timeout) {
+    drawObjects(*T_w_c_);
+  }
   char status[200];
   std::snprintf(status, sizeof(status),
                 "%s  frame %u  %s  %d pts  %zu kf  %zu map pts  %zu VOs  %.1f ms%s",

@@ -12,8 +12,9 @@
 7. Answers with OK graphs (the ground-truth pose, no points: the device does not track, so touch
    rays start at the graph's pose) holding the corridor's floor plane: a touch stroke produces
    REGISTER interactions whose lines lie on the floor, ahead of the device, chained, with the
-   touch's colour and width; accepted ones come back in a graph; a touch on such a VO sends
-   MANIPULATE with its id and base_version, moved along the floor.
+   touch's colour and width; accepted ones come back in a graph and are drawn into ar_view in
+   their colour; a touch on such a VO sends MANIPULATE with its id and base_version, moved along
+   the floor.
 8. vo_share direct: a VO published on /<device>/objects is held (a touch on it sends MANIPULATE);
    its tombstone removes it (a touch there sends nothing).
 """
@@ -30,6 +31,7 @@ import unittest
 
 import rospy
 import rostest
+from sensor_msgs.msg import Image
 from ecar_msgs.msg import (DeviceFrame, Interaction, InteractionResult, LocalGraph, Plane,
                            RoundTripMetrics, Touch, Upload, VirtualObject)
 from geometry_msgs.msg import Point
@@ -342,6 +344,23 @@ class DeviceTest(unittest.TestCase):
             self.interactions = []
         self.wait_for(lambda: self.last_pose is not None, 5.0, "an OK graph with the objects")
         time.sleep(0.3)
+
+        # ar_view draws them in the touch's colour (BGR 200, 0, 255; the camera image is grey).
+        self.stroke_pixels = []
+
+        def on_view(img):
+            if img.encoding != "bgr8":
+                return
+            data = bytes(img.data)
+            n = sum(1 for i in range(0, len(data) - 2, 3)
+                    if data[i] > 150 and data[i + 1] < 60 and data[i + 2] > 200)
+            with self.lock:
+                self.stroke_pixels.append(n)
+
+        view_sub = rospy.Subscriber("/" + self.device + "/ar_view", Image, on_view, queue_size=1)
+        self.wait_for(lambda: any(n >= 50 for n in self.stroke_pixels), 10.0,
+                      "the stroke drawn in ar_view")
+        view_sub.unregister()
 
         # 8. A touch on the first line grabs it: MANIPULATE with its id, moved along the floor.
         with self.lock:

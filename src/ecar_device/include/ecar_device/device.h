@@ -145,7 +145,7 @@ class Device {
   void changeEpoch(uint32_t epoch, const char* why);
   /// Takes the planes and VOs of a local graph (bad entries are skipped with a warning).
   void applyGraphObjects(const ecar_msgs::LocalGraph& msg);
-  /// Draws the held VOs and pending strokes into ar_image_ from T_w_c.
+  /// Draws the held VOs and pending strokes into ar_image_ from T_w_c (bgr8).
   void drawObjects(const ecar::SE3& T_w_c);
 
   DeviceConfig config_;
