@@ -167,14 +167,19 @@ class DeviceObjects {
   /// Drops everything held and in progress (a map epoch change). Request ids go on.
   void clear();
 
+  /// The held VOs (live ones only; a moved VO has its local state), by id.
   const std::map<ObjectId, VirtualObject>& objects() const { return objects_; }
+  /// The held planes, by id.
   const std::map<PlaneId, Plane>& planes() const { return planes_; }
+  /// A copy of one held VO, nullopt when not held (or deleted).
   std::optional<VirtualObject> object(ObjectId id) const;
   /// Requests kept waiting for their answer at most (the oldest are forgotten).
   static constexpr size_t kMaxUnanswered = 512;
   /// Segments sent as REGISTER and not answered yet.
   size_t numInFlight() const { return registering_.size(); }
+  /// A stroke is open (BEGIN on a plane, no END yet).
   bool stroking() const { return stroke_.active; }
+  /// A VO is grabbed (BEGIN on it, no END yet).
   bool grabbing() const { return grab_.active; }
 
  private:
