@@ -1,6 +1,7 @@
 #include "ecar_device/device.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 
 #include <cv_bridge/cv_bridge.h>
@@ -11,6 +12,7 @@
 
 #include <ecar_msgs/Connect.h>
 #include <ecar_msgs/DeviceFrame.h>
+#include <ecar_msgs/Interaction.h>
 #include <ecar_msgs/RoundTripMetrics.h>
 #include <ecar_msgs/Upload.h>
 
@@ -29,7 +31,11 @@ const char* stateName(ecar::TrackingState s) { return ecar::toString(s); }
 }  // namespace
 
 Device::Device(const ros::NodeHandle& nh, const DeviceConfig& config)
-    : config_(config), nh_(nh), camera_frame_(config.device_id + "/camera"), connect_nh_(nh) {
+    : config_(config),
+      nh_(nh),
+      camera_frame_(config.device_id + "/camera"),
+      objects_(config.objects, config.device_id),
+      connect_nh_(nh) {
   config_.validate();
   // Conventional names until the server names others on connection: the
   // server's subscriber can connect before the first upload.
@@ -37,6 +43,12 @@ Device::Device(const ros::NodeHandle& nh, const DeviceConfig& config)
   local_graph_topic_ = nh_.resolveName("local_graph");
   upload_pub_ = nh_.advertise<ecar_msgs::Upload>(upload_topic_, 4);
   graph_sub_ = nh_.subscribe(local_graph_topic_, 8, &Device::onLocalGraph, this);
+  interaction_topic_ = nh_.resolveName("interaction");
+  interaction_pub_ = nh_.advertise<ecar_msgs::Interaction>(interaction_topic_, 50);
+  touch_sub_ = nh_.subscribe("touch", 50, &Device::onTouch, this);
+  result_sub_ = nh_.subscribe("interaction_result", 50, &Device::onInteractionResult, this);
+  direct_objects_sub_ =
+      nh_.subscribe(config_.direct_objects_topic, 100, &Device::onDirectObject, this);
   pose_pub_ = nh_.advertise<geometry_msgs::PoseStamped>("pose", 10);
   device_frame_pub_ = nh_.advertise<ecar_msgs::DeviceFrame>("device_frame", 30);
   metrics_pub_ = nh_.advertise<ecar_msgs::RoundTripMetrics>("metrics", 30);
@@ -87,6 +99,7 @@ void Device::onCameraInfo(const sensor_msgs::CameraInfoConstPtr& msg) {
       connected_ = false;
     }
     tracker_ = std::make_unique<ecar::DeviceTracker>(camera, config_.tracker);
+    camera_ = camera;
     camera_info_ = *msg;
     has_camera_info_ = true;
     pending_.clear();
@@ -249,6 +262,12 @@ void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
   std_msgs::Header header;
   header.stamp = image.header.stamp;
   header.frame_id = config_.map_frame;
+  tracking_ok_ = r.state == ecar::TrackingState::kOk;
+  last_image_stamp_ = image.header.stamp;
+  if (tracking_ok_) {
+    T_w_c_ = r.T_w_c;
+    pose_stamp_ = image.header.stamp;
+  }
   if (r.state == ecar::TrackingState::kOk) {
     geometry_msgs::PoseStamped pose;
     pose.header = header;
@@ -262,11 +281,16 @@ void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
   for (const cv::Point2f& p : r.tracked_pixels) {
     cv::circle(ar_image_, p, 3, cv::Scalar(0, 255, 0), 1, cv::LINE_AA);
   }
-  char status[160];
-  std::snprintf(status, sizeof(status), "%s  frame %u  %s  %d pts  %zu kf  %zu map pts  %.1f ms%s",
+  // VOs at the pose touches use (this frame's when tracked), unless it is stale.
+  if (T_w_c_ && (image.header.stamp - pose_stamp_).toSec() <= config_.touch_pose_timeout) {
+    drawObjects(*T_w_c_);
+  }
+  char status[200];
+  std::snprintf(status, sizeof(status),
+                "%s  frame %u  %s  %d pts  %zu kf  %zu map pts  %zu VOs  %.1f ms%s",
                 config_.device_id.c_str(), r.frame_index, stateName(r.state), r.inliers,
-                tracker_->numKeyFrames(), tracker_->numPoints(), r.total_ms,
-                connected_ ? "" : "  (not connected)");
+                tracker_->numKeyFrames(), tracker_->numPoints(), objects_.objects().size(),
+                r.total_ms, connected_ ? "" : "  (not connected)");
   cv::rectangle(ar_image_, cv::Rect(0, 0, ar_image_.cols, 22), cv::Scalar(0, 0, 0), cv::FILLED);
   cv::putText(ar_image_, status, cv::Point(6, 16), cv::FONT_HERSHEY_SIMPLEX, 0.45,
               r.state == ecar::TrackingState::kOk ? cv::Scalar(0, 255, 0) : cv::Scalar(0, 0, 255),
@@ -316,6 +340,11 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
   if (!has_epoch_ || msg->map_epoch != epoch_) {
     changeEpoch(msg->map_epoch, "a local graph");
   }
+  applyGraphObjects(*msg);
+  if (ok_status && (!T_w_c_ || msg->header.stamp > pose_stamp_)) {
+    T_w_c_ = edgeslam ? full.T_w_c : graph.T_w_c;
+    pose_stamp_ = msg->header.stamp;
+  }
   last_graph_frame_ = msg->frame_index;
   last_progress_ = ros::WallTime::now();
   uploaded_since_progress_ = false;
@@ -352,6 +381,8 @@ void Device::changeEpoch(uint32_t epoch, const char* why) {
     ROS_INFO("%s: map epoch %u -> %u (from %s): local map dropped", config_.device_id.c_str(),
              epoch_, epoch, why);
     if (tracker_) tracker_->clear();
+    objects_.clear();
+    T_w_c_.reset();
     reset_next_ = true;
   }
   has_epoch_ = true;
@@ -362,6 +393,104 @@ void Device::prunePending(const ros::Time& now) {
   while (!pending_.empty() && (now - pending_.front().sent).toSec() > config_.reconnect_timeout) {
     free_images_.push_back(std::move(pending_.front().gray));
     pending_.pop_front();
+  }
+}
+
+// ---------------------------------------------------------------- virtual objects
+
+void Device::applyGraphObjects(const ecar_msgs::LocalGraph& msg) {
+  if (msg.planes.empty() && msg.objects.empty()) return;
+  graph_planes_.clear();
+  graph_objects_.clear();
+  for (size_t i = 0; i < msg.planes.size(); ++i) {
+    try {
+      graph_planes_.push_back(fromPlane(msg.planes[i], "planes[" + std::to_string(i) + "]"));
+    } catch (const ecar::Error& e) {
+      ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph of frame %u: plane skipped: %s",
+                        config_.device_id.c_str(), msg.frame_index, e.what());
+    }
+  }
+  for (size_t i = 0; i < msg.objects.size(); ++i) {
+    try {
+      graph_objects_.push_back(
+          fromVirtualObject(msg.objects[i], "objects[" + std::to_string(i) + "]"));
+    } catch (const ecar::Error& e) {
+      ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph of frame %u: object skipped: %s",
+                        config_.device_id.c_str(), msg.frame_index, e.what());
+    }
+  }
+  objects_.applyGraph(graph_planes_, graph_objects_);
+}
+
+void Device::onTouch(const ecar_msgs::TouchConstPtr& msg) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const char* id = config_.device_id.c_str();
+  try {
+    validateTouch(*msg);
+  } catch (const ecar::Error& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: touch dropped: %s", id, e.what());
+    return;
+  }
+  // A stroke or drag goes on from the last pose; a new one needs a recent pose.
+  const bool begin = msg->phase == ecar_msgs::Touch::BEGIN;
+  if (!camera_ || !T_w_c_ ||
+      (begin && (last_image_stamp_ - pose_stamp_).toSec() > config_.touch_pose_timeout)) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: touch dropped: no pose within ~touch_pose_timeout", id);
+    return;
+  }
+  requests_.clear();
+  objects_.touch(fromTouch(*msg), *T_w_c_, *camera_, &requests_);
+  std_msgs::Header header;
+  header.stamp = msg->header.stamp.isZero() ? ros::Time::now() : msg->header.stamp;
+  header.frame_id = config_.map_frame;
+  for (const ecar::VoRequest& r : requests_) {
+    interaction_pub_.publish(toInteraction(r, config_.device_id, header));
+  }
+}
+
+void Device::onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const char* id = config_.device_id.c_str();
+  if (msg->device_id != config_.device_id) {
+    ROS_WARN_THROTTLE(kWarnPeriod,
+                      "%s: interaction_result dropped: device_id \"%s\" is another device", id,
+                      msg->device_id.c_str());
+    return;
+  }
+  std::string what;
+  if (objects_.applyResult(fromInteractionResult(*msg), &what)) {
+    ROS_DEBUG("%s: %s", id, what.c_str());
+  } else {
+    ROS_WARN_THROTTLE(0.5, "%s: %s", id, what.c_str());
+  }
+}
+
+void Device::onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  try {
+    graph_planes_.clear();
+    graph_objects_.assign(1, fromVirtualObject(*msg, "object"));
+    objects_.applyGraph(graph_planes_, graph_objects_);
+  } catch (const ecar::Error& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: %s dropped: %s", config_.device_id.c_str(),
+                      config_.direct_objects_topic.c_str(), e.what());
+  }
+}
+
+void Device::drawObjects(const ecar::SE3& T_w_c) {
+  if (!camera_) return;
+  objects_.drawList(T_w_c, *camera_, &draw_lines_);
+  constexpr double kMaxPx = 1e7;  // beyond int range once scaled: never on screen anyway
+  for (const ecar::ScreenLine& l : draw_lines_) {
+    if (l.a.cwiseAbs().maxCoeff() > kMaxPx || l.b.cwiseAbs().maxCoeff() > kMaxPx) continue;
+    const cv::Point a(static_cast<int>(std::lround(l.a.x())),
+                      static_cast<int>(std::lround(l.a.y())));
+    const cv::Point b(static_cast<int>(std::lround(l.b.x())),
+                      static_cast<int>(std::lround(l.b.y())));
+    const int thickness = std::max(1, static_cast<int>(std::lround(l.thickness)));
+    // Strokes not acknowledged yet get a white outline.
+    if (l.pending) cv::line(ar_image_, a, b, cv::Scalar(255, 255, 255), thickness + 2, cv::LINE_AA);
+    cv::line(ar_image_, a, b, cv::Scalar(l.blue, l.green, l.red), thickness, cv::LINE_AA);
   }
 }
 
@@ -439,6 +568,11 @@ void Device::onConnectTimer() {
       srv.response.local_graph_topic != local_graph_topic_) {
     local_graph_topic_ = srv.response.local_graph_topic;
     graph_sub_ = nh_.subscribe(local_graph_topic_, 8, &Device::onLocalGraph, this);
+  }
+  if (!srv.response.interaction_topic.empty() &&
+      srv.response.interaction_topic != interaction_topic_) {
+    interaction_topic_ = srv.response.interaction_topic;
+    interaction_pub_ = nh_.advertise<ecar_msgs::Interaction>(interaction_topic_, 50);
   }
   if (!has_epoch_ || srv.response.map_epoch != epoch_) {
     changeEpoch(srv.response.map_epoch, "the connection");

@@ -123,6 +123,15 @@ void DeviceConfig::validate() const {
   }
   if (connect_service.empty()) fail("connect_service", "must not be empty");
   if (global_metrics_topic.empty()) fail("global_metrics_topic", "must not be empty");
+  if (direct_objects_topic.empty()) fail("direct_objects_topic", "must not be empty");
+  if (!std::isfinite(touch_pose_timeout) || touch_pose_timeout <= 0.0) {
+    fail("touch_pose_timeout", "must be > 0 s");
+  }
+  try {
+    objects.validate();
+  } catch (const ecar::Error& e) {
+    throw ecar::Error(std::string("~objects/") + e.what());
+  }
   try {
     tracker.validate();
   } catch (const ecar::Error& e) {
@@ -156,6 +165,8 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("publish_tf", &c.publish_tf);
   r.read("connect_service", &c.connect_service);
   r.read("global_metrics_topic", &c.global_metrics_topic);
+  r.read("touch_pose_timeout", &c.touch_pose_timeout);
+  r.read("direct_objects_topic", &c.direct_objects_topic);
   r.read("keyframe_queue", &c.tracker.keyframe_queue);
   ParamReader t = r.child("tracking");
   t.read("projection_radius", &c.tracker.projection_radius);
@@ -169,10 +180,19 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   o.read("num_levels", &c.tracker.orb.num_levels);
   o.read("fast_threshold", &c.tracker.orb.fast_threshold);
   o.read("min_fast_threshold", &c.tracker.orb.min_fast_threshold);
+  ParamReader v = r.child("objects");
+  v.read("segment_length", &c.objects.segment_length);
+  v.read("min_segment_length", &c.objects.min_segment_length);
+  v.read("max_distance", &c.objects.max_distance);
+  v.read("pick_radius", &c.objects.pick_radius);
+  v.read("boundary_margin", &c.objects.boundary_margin);
+  v.read("near_clip", &c.objects.near_clip);
+  v.read("max_thickness_px", &c.objects.max_thickness_px);
   if (unknown) {
     *unknown = r.unknown();
     for (const auto& k : t.unknown()) unknown->push_back(k);
     for (const auto& k : o.unknown()) unknown->push_back(k);
+    for (const auto& k : v.unknown()) unknown->push_back(k);
   }
   c.validate();
   return c;

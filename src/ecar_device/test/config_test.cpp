@@ -73,6 +73,15 @@ TEST(DeviceConfigTest, ShippedYamlHasOnlyKnownKeysWithTheDefaults) {
   EXPECT_EQ(c.tracker.orb.num_features, d.tracker.orb.num_features);
   EXPECT_FLOAT_EQ(c.tracker.orb.scale_factor, d.tracker.orb.scale_factor);
   EXPECT_EQ(c.tracker.orb.num_levels, d.tracker.orb.num_levels);
+  EXPECT_DOUBLE_EQ(c.touch_pose_timeout, d.touch_pose_timeout);
+  EXPECT_EQ(c.direct_objects_topic, d.direct_objects_topic);
+  EXPECT_DOUBLE_EQ(c.objects.segment_length, d.objects.segment_length);
+  EXPECT_DOUBLE_EQ(c.objects.min_segment_length, d.objects.min_segment_length);
+  EXPECT_DOUBLE_EQ(c.objects.max_distance, d.objects.max_distance);
+  EXPECT_DOUBLE_EQ(c.objects.pick_radius, d.objects.pick_radius);
+  EXPECT_DOUBLE_EQ(c.objects.boundary_margin, d.objects.boundary_margin);
+  EXPECT_DOUBLE_EQ(c.objects.near_clip, d.objects.near_clip);
+  EXPECT_DOUBLE_EQ(c.objects.max_thickness_px, d.objects.max_thickness_px);
 }
 
 TEST(DeviceConfigTest, BadValuesNameTheParameter) {
@@ -97,6 +106,12 @@ TEST(DeviceConfigTest, BadValuesNameTheParameter) {
   p = XmlRpc::XmlRpcValue();
   p["pace_timeout"] = -1.0;
   EXPECT_NE(errorOf(p).find("~pace_timeout"), std::string::npos);
+  p = XmlRpc::XmlRpcValue();
+  p["objects"]["segment_length"] = 0.0;
+  EXPECT_NE(errorOf(p).find("~objects/segment_length"), std::string::npos) << errorOf(p);
+  p = XmlRpc::XmlRpcValue();
+  p["objects"]["pick_radius"] = std::string("wide");
+  EXPECT_NE(errorOf(p).find("~objects/pick_radius"), std::string::npos) << errorOf(p);
 }
 
 }  // namespace

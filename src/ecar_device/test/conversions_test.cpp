@@ -229,5 +229,164 @@ TEST(RoundTripMetricsTest, LatencyPartsAndBytes) {
   EXPECT_EQ(toRoundTripMetrics(g, t).points, 7u);
 }
 
+ecar::VirtualObject someObject() {
+  ecar::VirtualObject vo;
+  vo.id = ecar::ObjectId(17);
+  vo.kind = ecar::VoKind::kLine;
+  vo.start = Eigen::Vector3d(1.0, 2.0, 0.0);
+  vo.end = Eigen::Vector3d(1.5, 2.25, 0.0);
+  vo.position = 0.5 * (vo.start + vo.end);
+  vo.r = 200;
+  vo.g = 10;
+  vo.b = 3;
+  vo.width = 0.025f;
+  vo.normal = Eigen::Vector3d::UnitZ();
+  vo.plane = ecar::PlaneId(4);
+  vo.owner = "device_1";
+  vo.version = 9;
+  vo.deleted = true;
+  return vo;
+}
+
+void expectObjectEq(const ecar::VirtualObject& a, const ecar::VirtualObject& b) {
+  EXPECT_EQ(a.id, b.id);
+  EXPECT_EQ(a.kind, b.kind);
+  EXPECT_EQ(a.position, b.position);
+  EXPECT_EQ(a.start, b.start);
+  EXPECT_EQ(a.end, b.end);
+  EXPECT_EQ(a.r, b.r);
+  EXPECT_EQ(a.g, b.g);
+  EXPECT_EQ(a.b, b.b);
+  EXPECT_FLOAT_EQ(a.width, b.width);
+  EXPECT_EQ(a.normal, b.normal);
+  EXPECT_EQ(a.plane, b.plane);
+  EXPECT_EQ(a.owner, b.owner);
+  EXPECT_EQ(a.version, b.version);
+  EXPECT_EQ(a.deleted, b.deleted);
+}
+
+TEST(VirtualObjectTest, RoundTripAndBadFields) {
+  const ecar::VirtualObject vo = someObject();
+  const ecar_msgs::VirtualObject m = toVirtualObject(vo);
+  EXPECT_EQ(m.id, 17u);
+  EXPECT_EQ(m.kind, ecar_msgs::VirtualObject::LINE);
+  EXPECT_EQ(m.plane_id, 4u);
+  expectObjectEq(fromVirtualObject(m), vo);
+  ecar_msgs::VirtualObject bad = m;
+  bad.start.y = std::numeric_limits<double>::quiet_NaN();
+  try {
+    fromVirtualObject(bad, "objects[2]");
+    FAIL() << "no error";
+  } catch (const ecar::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("objects[2].start"), std::string::npos) << e.what();
+  }
+  bad = m;
+  bad.kind = 5;
+  EXPECT_THROW(fromVirtualObject(bad), ecar::Error);
+  bad = m;
+  bad.normal.z = 0.0;
+  EXPECT_THROW(fromVirtualObject(bad), ecar::Error);
+}
+
+TEST(PlaneMsgTest, RoundTripAndBadFields) {
+  ecar::Plane p;
+  p.id = ecar::PlaneId(3);
+  p.label = ecar::PlaneLabel::kWall;
+  p.normal = Eigen::Vector3d(0.6, 0.8, 0.0);
+  p.offset = -2.5;
+  p.boundary = {{0, 0, 0}, {1, 0, 0}, {1, 1, 2}};
+  p.version = 4;
+  p.num_points = 120;
+  const ecar_msgs::Plane m = toPlane(p);
+  EXPECT_EQ(m.label, ecar_msgs::Plane::WALL);
+  const ecar::Plane back = fromPlane(m);
+  EXPECT_EQ(back.id, p.id);
+  EXPECT_EQ(back.label, p.label);
+  EXPECT_LT((back.normal - p.normal).norm(), 1e-12);
+  EXPECT_DOUBLE_EQ(back.offset, p.offset);
+  EXPECT_EQ(back.boundary, p.boundary);
+  EXPECT_EQ(back.version, 4u);
+  EXPECT_EQ(back.num_points, 120u);
+  ecar_msgs::Plane bad = m;
+  bad.normal.x = 2.0;
+  EXPECT_THROW(fromPlane(bad), ecar::Error);
+  bad = m;
+  bad.boundary[1].z = std::numeric_limits<double>::infinity();
+  try {
+    fromPlane(bad, "planes[0]");
+    FAIL() << "no error";
+  } catch (const ecar::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("planes[0].boundary[1]"), std::string::npos) << e.what();
+  }
+}
+
+TEST(TouchTest, RoundTripAndValidation) {
+  ecar::TouchInput t;
+  t.uv = Eigen::Vector2d(120.5, 300.25);
+  t.phase = ecar::TouchInput::kMove;
+  t.r = 1;
+  t.g = 2;
+  t.b = 3;
+  t.width = 0.04f;
+  std_msgs::Header h;
+  h.frame_id = "device_0/camera";
+  const ecar_msgs::Touch m = toTouch(t, h);
+  EXPECT_EQ(m.phase, ecar_msgs::Touch::MOVE);
+  EXPECT_NO_THROW(validateTouch(m));
+  const ecar::TouchInput back = fromTouch(m);
+  EXPECT_EQ(back.uv, t.uv);
+  EXPECT_EQ(back.phase, t.phase);
+  EXPECT_EQ(back.r, 1);
+  EXPECT_EQ(back.g, 2);
+  EXPECT_EQ(back.b, 3);
+  EXPECT_FLOAT_EQ(back.width, 0.04f);
+  ecar_msgs::Touch bad = m;
+  bad.u = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_THROW(validateTouch(bad), ecar::Error);
+  bad = m;
+  bad.width = 0.0f;
+  EXPECT_THROW(validateTouch(bad), ecar::Error);
+  bad = m;
+  bad.phase = 3;
+  EXPECT_THROW(validateTouch(bad), ecar::Error);
+}
+
+TEST(InteractionTest, RoundTrip) {
+  ecar::VoRequest r;
+  r.request_id = 33;
+  r.type = ecar::VoRequestType::kManipulate;
+  r.object_id = ecar::ObjectId(17);
+  r.object = someObject();
+  r.base_version = 9;
+  std_msgs::Header h;
+  h.frame_id = "map";
+  const ecar_msgs::Interaction m = toInteraction(r, "device_0", h);
+  EXPECT_EQ(m.device_id, "device_0");
+  EXPECT_EQ(m.header.frame_id, "map");
+  EXPECT_EQ(m.type, ecar_msgs::Interaction::MANIPULATE);
+  EXPECT_EQ(m.object_id, 17u);
+  const ecar::VoRequest back = fromInteraction(m);
+  EXPECT_EQ(back.request_id, 33u);
+  EXPECT_EQ(back.type, r.type);
+  EXPECT_EQ(back.object_id, r.object_id);
+  EXPECT_EQ(back.base_version, 9u);
+  expectObjectEq(back.object, r.object);
+  ecar_msgs::Interaction bad = m;
+  bad.type = 7;
+  EXPECT_THROW(fromInteraction(bad), ecar::Error);
+}
+
+TEST(InteractionResultTest, RoundTrip) {
+  const ecar::VoResult r{12, false, ecar::ObjectId(5), 3, "stale base_version 2 (store has 3)"};
+  const ecar_msgs::InteractionResult m = toInteractionResult(r, "device_0", std_msgs::Header());
+  EXPECT_EQ(m.device_id, "device_0");
+  const ecar::VoResult back = fromInteractionResult(m);
+  EXPECT_EQ(back.request_id, 12u);
+  EXPECT_FALSE(back.accepted);
+  EXPECT_EQ(back.object_id, ecar::ObjectId(5));
+  EXPECT_EQ(back.version, 3u);
+  EXPECT_EQ(back.reason, r.reason);
+}
+
 }  // namespace
 }  // namespace ecar_device

@@ -9,6 +9,14 @@
 4. Answers uploads with NOT_INITIALISED local graphs: metrics arrive with the upload's bytes.
 5. Sends bad graphs (another device, NaN pose, unknown frame): the device keeps running.
 6. Stops answering: the device connects again within a few reconnect timeouts and sets reset.
+7. Answers with OK graphs (the ground-truth pose, no points: the device does not track, so touch
+   rays start at the graph's pose) holding the corridor's floor plane: a touch stroke produces
+   REGISTER interactions whose lines lie on the floor, ahead of the device, chained, with the
+   touch's colour and width; accepted ones come back in a graph and are drawn into ar_view in
+   their colour; a touch on such a VO sends MANIPULATE with its id and base_version, moved along
+   the floor.
+8. vo_share direct: a VO published on /<device>/objects is held (a touch on it sends MANIPULATE);
+   its tombstone removes it (a touch there sends nothing).
 """
 
 import math
@@ -23,7 +31,10 @@ import unittest
 
 import rospy
 import rostest
-from ecar_msgs.msg import DeviceFrame, LocalGraph, RoundTripMetrics, Upload
+from sensor_msgs.msg import Image
+from ecar_msgs.msg import (DeviceFrame, Interaction, InteractionResult, LocalGraph, Plane,
+                           RoundTripMetrics, Touch, Upload, VirtualObject)
+from geometry_msgs.msg import Point
 from ecar_msgs.srv import Connect, ConnectResponse
 
 PKG = "ecar_device"
@@ -48,6 +59,50 @@ def jpeg_size(data):
     return None
 
 
+def read_groundtruth(path):
+    """T_w_c per frame index from a TUM groundtruth.txt: list of (t, q) with q = (x, y, z, w)."""
+    poses = []
+    with open(path) as f:
+        for line in f:
+            if line.startswith("#") or not line.strip():
+                continue
+            v = [float(x) for x in line.split()]
+            poses.append((v[1:4], v[4:8]))
+    return poses
+
+
+def rotate(q, p):
+    """Rotates p by the unit quaternion q = (x, y, z, w)."""
+    x, y, z, w = q
+    # v' = v + 2 w (u x v) + 2 u x (u x v), u = (x, y, z)
+    ux = (y * p[2] - z * p[1], z * p[0] - x * p[2], x * p[1] - y * p[0])
+    uux = (y * ux[2] - z * ux[1], z * ux[0] - x * ux[2], x * ux[1] - y * ux[0])
+    return [p[i] + 2.0 * w * ux[i] + 2.0 * uux[i] for i in range(3)]
+
+
+def project(pose, p_w, f=525.0, cx=319.5, cy=239.5):
+    """Pixel of map point p_w seen from T_w_c = pose (t, q)."""
+    t, (x, y, z, w) = pose
+    p_c = rotate((-x, -y, -z, w), [p_w[i] - t[i] for i in range(3)])
+    return cx + f * p_c[0] / p_c[2], cy + f * p_c[1] / p_c[2]
+
+
+def floor_point(pose, u, v, f=525.0, cx=319.5, cy=239.5):
+    """Where the ray of pixel (u, v) from T_w_c = pose (t, q) meets the floor z = 0."""
+    t, q = pose
+    d = rotate(q, [(u - cx) / f, (v - cy) / f, 1.0])
+    s = -t[2] / d[2]
+    return [t[i] + s * d[i] for i in range(3)]
+
+
+def floor_plane():
+    plane = Plane(id=3, label=Plane.FLOOR, offset=0.0, version=1, num_points=500)
+    plane.normal.z = 1.0
+    plane.boundary = [Point(0.0, 0.0, 0.0), Point(30.0, 0.0, 0.0), Point(30.0, 2.4, 0.0),
+                      Point(0.0, 2.4, 0.0)]
+    return plane
+
+
 class DeviceTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
@@ -60,6 +115,7 @@ class DeviceTest(unittest.TestCase):
              os.path.join(REPO, "config", "scenes", "corridor.yaml"), "--device", cls.device,
              "--frames", str(rospy.get_param("~frames", 40)), "--out", dataset],
             stdout=subprocess.DEVNULL)
+        cls.groundtruth = read_groundtruth(os.path.join(dataset, "groundtruth.txt"))
         cls.player = subprocess.Popen(
             ["rosrun", "ecar_sim", "dataset_player", "__name:=test_player", "_dataset:=" + dataset,
              "_device:=" + cls.device, "_rate:=1.0", "_loop:=true", "_start_delay:=0.0"],
@@ -78,7 +134,16 @@ class DeviceTest(unittest.TestCase):
         self.metrics = []
         self.connects = []
         self.answer = True
+        self.ok_graphs = False  # step 7: OK graphs with the ground-truth pose and the floor
+        self.objects = []       # VOs the fake server puts into its graphs
+        self.last_pose = None   # ground-truth pose of the latest OK graph
+        self.interactions = []
         ns = "/" + self.device
+        self.touch_pub = rospy.Publisher(ns + "/touch", Touch, queue_size=50)
+        self.direct_pub = rospy.Publisher(ns + "/objects", VirtualObject, queue_size=10)
+        self.result_pub = rospy.Publisher(ns + "/interaction_result", InteractionResult,
+                                          queue_size=50)
+        rospy.Subscriber(ns + "/interaction", Interaction, self.on_interaction)
         self.graph_pub = rospy.Publisher(ns + "/local_graph", LocalGraph, queue_size=10)
         rospy.Subscriber(ns + "/upload", Upload, self.on_upload)
         rospy.Subscriber(ns + "/device_frame", DeviceFrame, self.on_frame)
@@ -103,11 +168,30 @@ class DeviceTest(unittest.TestCase):
             g.frame_index = msg.frame_index
             g.status = LocalGraph.NOT_INITIALISED
             g.pose.orientation.w = 1.0
+            with self.lock:
+                if self.ok_graphs:
+                    # The player keeps counting header.seq when it loops.
+                    pose = self.groundtruth[msg.frame_index % len(self.groundtruth)]
+                    g.status = LocalGraph.OK
+                    (g.pose.position.x, g.pose.position.y, g.pose.position.z) = pose[0]
+                    (g.pose.orientation.x, g.pose.orientation.y, g.pose.orientation.z,
+                     g.pose.orientation.w) = pose[1]
+                    g.planes = [floor_plane()]
+                    g.objects = list(self.objects)
+                    self.last_pose = pose
             g.map_epoch = 7
             g.upload_sent = msg.sent
             g.server_received = rospy.Time.now()
             g.server_sent = rospy.Time.now()
             self.graph_pub.publish(g)
+
+    def on_interaction(self, msg):
+        with self.lock:
+            self.interactions.append(msg)
+
+    def touch(self, u, v, phase, pause=0.03):
+        self.touch_pub.publish(Touch(u=u, v=v, phase=phase, r=255, g=0, b=200, width=0.03))
+        time.sleep(pause)
 
     def on_frame(self, msg):
         with self.lock:
@@ -197,6 +281,163 @@ class DeviceTest(unittest.TestCase):
             self.answer = True
         self.wait_for(lambda: any(u.reset for _, u in self.uploads[silent_from:]), 10.0,
                       "an upload with reset after reconnecting")
+
+        # 7. OK graphs with the floor: a stroke becomes REGISTERed lines on it.
+        with self.lock:
+            self.ok_graphs = True
+        self.wait_for(lambda: self.last_pose is not None, 10.0, "an OK graph")
+        time.sleep(0.5)
+        while self.touch_pub.get_num_connections() == 0:
+            time.sleep(0.05)
+        with self.lock:
+            pose = self.last_pose
+        self.touch(300.0, 400.0, Touch.BEGIN)
+        for k in range(1, 11):
+            self.touch(300.0 + 8.0 * k, 400.0, Touch.MOVE)
+        self.touch(380.0, 400.0, Touch.END)
+        self.wait_for(lambda: len(self.interactions) >= 2, 5.0, "REGISTER interactions")
+        time.sleep(0.3)
+        with self.lock:
+            registers = list(self.interactions)
+        self.assertGreaterEqual(len(registers), 2)
+        camera_x = pose[0][0]
+        for i, m in enumerate(registers):
+            self.assertEqual(m.device_id, self.device)
+            self.assertEqual(m.type, Interaction.REGISTER)
+            self.assertEqual(m.object_id, 0)
+            self.assertEqual(m.base_version, 0)
+            self.assertEqual(m.header.frame_id, "map")
+            o = m.object
+            self.assertEqual(o.kind, VirtualObject.LINE)
+            self.assertEqual((o.r, o.g, o.b), (255, 0, 200))
+            self.assertAlmostEqual(o.width, 0.03, places=5)
+            self.assertEqual(o.plane_id, 3)
+            self.assertEqual(o.owner, self.device)
+            self.assertAlmostEqual(o.normal.z, 1.0, places=9)
+            for p in (o.start, o.end):
+                self.assertAlmostEqual(p.z, 0.0, places=6)  # on the floor
+                # Row 400 from 1.5 m at -5 deg pitch meets the floor ~3.7 m ahead.
+                self.assertGreater(p.x, camera_x + 2.0)
+                self.assertLess(p.x, camera_x + 6.0)
+                self.assertTrue(0.0 < p.y < 2.4)
+            if i > 0:
+                self.assertEqual(m.request_id, registers[i - 1].request_id + 1)
+                prev = registers[i - 1].object.end
+                self.assertAlmostEqual(o.start.x, prev.x, places=9)
+                self.assertAlmostEqual(o.start.y, prev.y, places=9)
+
+        # The fake server accepts them (ids 100, 101, ...) and sends them back in its graphs.
+        accepted = []
+        for i, m in enumerate(registers):
+            vo = m.object
+            vo.id = 100 + i
+            vo.version = 1
+            accepted.append(vo)
+            self.result_pub.publish(InteractionResult(
+                device_id=self.device, request_id=m.request_id, accepted=True,
+                object_id=vo.id, version=1))
+        self.result_pub.publish(InteractionResult(
+            device_id=self.device, request_id=9999, accepted=False, reason="unknown request"))
+        with self.lock:
+            self.objects = accepted
+            self.last_pose = None
+            self.interactions = []
+        self.wait_for(lambda: self.last_pose is not None, 5.0, "an OK graph with the objects")
+        time.sleep(0.3)
+
+        # ar_view draws them in the touch's colour (BGR 200, 0, 255; the camera image is grey).
+        self.stroke_pixels = []
+
+        def on_view(img):
+            if img.encoding != "bgr8":
+                return
+            data = bytes(img.data)
+            n = sum(1 for i in range(0, len(data) - 2, 3)
+                    if data[i] > 150 and data[i + 1] < 60 and data[i + 2] > 200)
+            with self.lock:
+                self.stroke_pixels.append(n)
+
+        view_sub = rospy.Subscriber("/" + self.device + "/ar_view", Image, on_view, queue_size=1)
+        self.wait_for(lambda: any(n >= 50 for n in self.stroke_pixels), 10.0,
+                      "the stroke drawn in ar_view")
+        view_sub.unregister()
+
+        # 8. A touch on the first line grabs it: MANIPULATE with its id, moved along the floor.
+        with self.lock:
+            self.answer = False  # hold the pose still while touching
+            pose = self.last_pose
+        time.sleep(0.2)
+        first = accepted[0]
+        mid = [(first.start.x + first.end.x) / 2, (first.start.y + first.end.y) / 2, 0.0]
+        u, v = project(pose, mid)
+        self.touch(u, v, Touch.BEGIN)
+        self.touch(u, v + 20.0, Touch.MOVE)
+        self.touch(u, v + 20.0, Touch.END)
+        with self.lock:
+            self.answer = True
+        self.wait_for(lambda: len(self.interactions) >= 3, 5.0, "MANIPULATE interactions")
+        with self.lock:
+            moves = list(self.interactions)
+        # The first line, or its neighbour sharing an end point (as near to the ray).
+        self.assertIn(moves[0].object_id, (100, 101))
+        first = accepted[moves[0].object_id - 100]
+        for m in moves:
+            self.assertEqual(m.type, Interaction.MANIPULATE)
+            self.assertEqual(m.object_id, first.id)
+            self.assertEqual(m.base_version, 1)
+            self.assertAlmostEqual(m.object.start.z, 0.0, places=6)
+            self.assertAlmostEqual(m.object.end.z, 0.0, places=6)
+        # Lower on the image = nearer the camera: the line moved towards the device.
+        self.assertLess(moves[-1].object.position.x, moves[0].object.position.x - 0.05)
+        length = math.hypot(first.end.x - first.start.x, first.end.y - first.start.y)
+        moved = moves[-1].object
+        self.assertAlmostEqual(math.hypot(moved.end.x - moved.start.x, moved.end.y - moved.start.y),
+                               length, places=6)
+
+        # 9. vo_share direct: a VO relayed on /<device>/objects is held; its tombstone removes it.
+        while self.direct_pub.get_num_connections() == 0:
+            time.sleep(0.05)
+        with self.lock:
+            self.answer = False
+            pose = self.last_pose
+            self.interactions = []
+        time.sleep(0.2)
+        a, b = floor_point(pose, 300.0, 380.0), floor_point(pose, 340.0, 380.0)
+        relayed = VirtualObject(id=200, kind=VirtualObject.LINE, r=0, g=255, b=0, width=0.02,
+                                plane_id=3, owner="device_1", version=4)
+        relayed.start = Point(*a)
+        relayed.end = Point(*b)
+        relayed.position = Point(*[(a[i] + b[i]) / 2 for i in range(3)])
+        relayed.normal.z = 1.0
+        self.direct_pub.publish(relayed)
+        time.sleep(0.2)
+        u, v = project(pose, [relayed.position.x, relayed.position.y, 0.0])
+        self.touch(u, v, Touch.BEGIN)
+        self.touch(u, v, Touch.END)
+        self.wait_for(lambda: len(self.interactions) >= 2, 5.0, "MANIPULATE of the relayed VO")
+        with self.lock:
+            self.assertTrue(all(m.type == Interaction.MANIPULATE and m.object_id == 200 and
+                                m.base_version == 4 for m in self.interactions))
+            self.interactions = []
+        relayed.version = 5
+        relayed.deleted = True
+        self.direct_pub.publish(relayed)
+        with self.lock:
+            self.answer = True
+            self.last_pose = None
+        self.wait_for(lambda: self.last_pose is not None, 5.0, "an OK graph")
+        with self.lock:
+            self.answer = False
+            pose = self.last_pose
+        time.sleep(0.2)
+        # The touch now meets the floor where the VO was: a stroke, no MANIPULATE.
+        u, v = project(pose, [relayed.position.x, relayed.position.y, 0.0])
+        self.touch(u, v, Touch.BEGIN)
+        self.touch(u + 30.0, v, Touch.END)
+        self.wait_for(lambda: len(self.interactions) >= 1, 5.0, "a stroke where the VO was")
+        with self.lock:
+            self.answer = True
+            self.assertTrue(all(m.type == Interaction.REGISTER for m in self.interactions))
 
 
 if __name__ == "__main__":

@@ -17,13 +17,21 @@
 #include <opencv2/core.hpp>
 
 #include <ecar_msgs/DeviceFrame.h>
+#include <ecar_msgs/Interaction.h>
+#include <ecar_msgs/InteractionResult.h>
 #include <ecar_msgs/LocalGraph.h>
+#include <ecar_msgs/Plane.h>
 #include <ecar_msgs/RoundTripMetrics.h>
+#include <ecar_msgs/Touch.h>
 #include <ecar_msgs/TrackedPoint.h>
 #include <ecar_msgs/Upload.h>
+#include <ecar_msgs/VirtualObject.h>
 
+#include "ecar_core/device_objects.h"
 #include "ecar_core/device_tracker.h"
 #include "ecar_core/geometry.h"
+#include "ecar_core/planes.h"
+#include "ecar_core/vo_store.h"
 
 namespace ecar_device {
 
@@ -93,5 +101,43 @@ struct RoundTrip {
 /// points = points (ecar) or map_points (edgeslam).
 ecar_msgs::RoundTripMetrics toRoundTripMetrics(const ecar_msgs::LocalGraph& graph,
                                                const RoundTrip& trip);
+
+// ---------------------------------------------------------------- virtual objects
+
+/// Field for field (position, start, end, normal as float64 points/vectors).
+ecar_msgs::VirtualObject toVirtualObject(const ecar::VirtualObject& vo);
+/// Inverse of toVirtualObject. Throws ecar::Error naming `field` and the member
+/// (e.g. "objects[2].start: non-finite") on a non-finite coordinate, normal or
+/// width, or a kind other than LINE / ANCHOR.
+ecar::VirtualObject fromVirtualObject(const ecar_msgs::VirtualObject& msg,
+                                      const std::string& field = "object");
+
+/// Field for field (boundary as points).
+ecar_msgs::Plane toPlane(const ecar::Plane& plane);
+/// Inverse of toPlane. Throws ecar::Error naming `field` and the member on a
+/// non-finite value, a normal that is not unit (within 1e-3) or a label beyond OTHER.
+ecar::Plane fromPlane(const ecar_msgs::Plane& msg, const std::string& field = "plane");
+
+/// The touch's pixel, phase, colour and width (header not kept).
+ecar::TouchInput fromTouch(const ecar_msgs::Touch& msg);
+/// Inverse of fromTouch; `header` as given.
+ecar_msgs::Touch toTouch(const ecar::TouchInput& touch, const std_msgs::Header& header);
+/// Throws ecar::Error naming the field on a non-finite pixel, a width that is
+/// not finite and > 0, or a phase beyond END.
+void validateTouch(const ecar_msgs::Touch& msg);
+
+/// The Interaction of one request from `device_id` (header stamp and frame as given).
+ecar_msgs::Interaction toInteraction(const ecar::VoRequest& request, const std::string& device_id,
+                                     const std_msgs::Header& header);
+/// Inverse of toInteraction (device id and header not kept). Throws ecar::Error
+/// naming the field (e.g. "object.normal") on a bad object or type.
+ecar::VoRequest fromInteraction(const ecar_msgs::Interaction& msg);
+
+/// The answer to one request.
+ecar::VoResult fromInteractionResult(const ecar_msgs::InteractionResult& msg);
+/// Inverse of fromInteractionResult, for `device_id`.
+ecar_msgs::InteractionResult toInteractionResult(const ecar::VoResult& result,
+                                                 const std::string& device_id,
+                                                 const std_msgs::Header& header);
 
 }  // namespace ecar_device

@@ -14,6 +14,20 @@
 // ar_view (bgr8, only when subscribed), frame_done (std_msgs/UInt32: the
 // header.seq of the frame just processed; with ~pace_in_flight > 0 only once
 // fewer uploads than that wait for their local graph, or after ~pace_timeout s).
+//
+// Virtual objects: the device keeps the planes and VOs of its local graphs
+// (ecar::DeviceObjects). A touch (ecar_msgs/Touch on `touch`) casts a ray from
+// the device's latest tracked pose: a stroke begun on a plane becomes LINE VOs
+// sent as REGISTER interactions, a touch on a held VO drags it (MANIPULATE per
+// touch message) on the interaction topic the server names (default
+// `interaction`, ecar_msgs/Interaction); answers on `interaction_result`
+// (ecar_msgs/InteractionResult) are applied, rejections logged with their
+// reason. VO states relayed straight to the device (vo_share: direct, on
+// ~direct_objects_topic, ecar_msgs/VirtualObject) are held like those of local
+// graphs. ar_view draws the held VOs and the strokes in flight. Touch rays
+// start at the pose of the latest tracked frame, or of the latest OK local
+// graph when that is later (the device's own tracking lost); a BEGIN needs one
+// within ~touch_pose_timeout of the latest camera frame.
 #pragma once
 
 #include <cstdint>
@@ -33,9 +47,14 @@
 #include <tf2_ros/transform_broadcaster.h>
 #include <opencv2/core.hpp>
 
+#include <ecar_msgs/InteractionResult.h>
 #include <ecar_msgs/LocalGraph.h>
+#include <ecar_msgs/Touch.h>
 #include <ecar_msgs/Upload.h>
+#include <ecar_msgs/VirtualObject.h>
 
+#include "ecar_core/camera.h"
+#include "ecar_core/device_objects.h"
 #include "ecar_core/device_tracker.h"
 
 namespace ecar_device {
@@ -55,7 +74,14 @@ struct DeviceConfig {
   bool publish_tf = true;          ///< ~publish_tf: tf map -> <device>/camera
   std::string connect_service = "/ecar/connect";       ///< ~connect_service
   std::string global_metrics_topic = "/ecar/metrics";  ///< ~global_metrics_topic
-  ecar::DeviceTrackerConfig tracker;                   ///< ~keyframe_queue, ~tracking/..., ~orb/...
+  /// ~touch_pose_timeout: s; a touch BEGIN needs a pose (tracked frame or local
+  /// graph) at most this much older than the latest camera frame
+  double touch_pose_timeout = 1.0;
+  /// ~direct_objects_topic: VO states the server relays straight to this device
+  /// (vo_share: direct), relative to the device's namespace
+  std::string direct_objects_topic = "objects";
+  ecar::DeviceTrackerConfig tracker;  ///< ~keyframe_queue, ~tracking/..., ~orb/...
+  ecar::DeviceObjectsConfig objects;  ///< ~objects/... (touches, VOs, drawing)
 
   /// Throws ecar::Error naming the parameter (e.g. "~every") of the first bad value.
   void validate() const;
@@ -97,6 +123,9 @@ class Device {
   void onImu(const sensor_msgs::ImuConstPtr& msg);
   void onOdometry(const geometry_msgs::PoseStampedConstPtr& msg);
   void onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg);
+  void onTouch(const ecar_msgs::TouchConstPtr& msg);
+  void onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg);
+  void onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg);
   void onConnectTimer();
   void onPaceTimer();
 
@@ -114,6 +143,10 @@ class Device {
   /// Drops pending frames older than ~reconnect_timeout (their graph is lost).
   void prunePending(const ros::Time& now);
   void changeEpoch(uint32_t epoch, const char* why);
+  /// Takes the planes and VOs of a local graph (bad entries are skipped with a warning).
+  void applyGraphObjects(const ecar_msgs::LocalGraph& msg);
+  /// Draws the held VOs and pending strokes into ar_image_ from T_w_c (bgr8).
+  void drawObjects(const ecar::SE3& T_w_c);
 
   DeviceConfig config_;
   ros::NodeHandle nh_;
@@ -144,10 +177,24 @@ class Device {
   ros::WallTime held_since_;
   std::vector<uint8_t> jpeg_;
   cv::Mat ar_image_;
+  std::optional<ecar::PinholeCamera> camera_;  ///< from camera_info
+  /// Touch rays start here: the pose of the latest tracked frame or of the
+  /// latest OK local graph, whichever has the later stamp (pose_stamp_).
+  std::optional<ecar::SE3> T_w_c_;
+  ros::Time pose_stamp_;
+  ros::Time last_image_stamp_;
+  bool tracking_ok_ = false;  ///< the latest frame was tracked
+  ecar::DeviceObjects objects_;
+  std::vector<ecar::VoRequest> requests_;     ///< scratch of onTouch
+  std::vector<ecar::ScreenLine> draw_lines_;  ///< scratch of drawObjects
+  std::vector<ecar::Plane> graph_planes_;     ///< scratch of applyGraphObjects
+  std::vector<ecar::VirtualObject> graph_objects_;
+  std::string interaction_topic_;
 
   ros::Publisher upload_pub_, pose_pub_, device_frame_pub_, metrics_pub_, global_metrics_pub_,
-      ar_view_pub_, frame_done_pub_;
-  ros::Subscriber image_sub_, info_sub_, imu_sub_, odometry_sub_, graph_sub_;
+      ar_view_pub_, frame_done_pub_, interaction_pub_;
+  ros::Subscriber image_sub_, info_sub_, imu_sub_, odometry_sub_, graph_sub_, touch_sub_,
+      result_sub_, direct_objects_sub_;
   tf2_ros::TransformBroadcaster tf_;
   ros::SteadyTimer pace_timer_;
 
