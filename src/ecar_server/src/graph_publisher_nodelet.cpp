@@ -126,6 +126,10 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
                             device.c_str(), graph->frame_index, e.what());
       return;
     }
+    if (!v.error.empty()) {
+      NODELET_WARN_THROTTLE(5.0, "device %s: no objects in local graph %u: %s", device.c_str(),
+                            graph->frame_index, v.error.c_str());
+    }
     graph->planes.reserve(v.planes.size());
     for (const auto& p : v.planes) graph->planes.push_back(toMsg(p));
     graph->objects.reserve(v.objects.size());

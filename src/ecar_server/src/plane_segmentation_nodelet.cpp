@@ -97,16 +97,19 @@ class PlaneSegmentationNodelet : public nodelet::Nodelet {
                             "cells in %.1f + %.1f + %.1f ms (segment, integrate, grid)",
                             structure.planes().size(), event.id.value, input.points.size(),
                             r.observations, r.cells, r.segment_ms, r.integrate_ms, r.grid_ms);
-      if (lo.x() <= hi.x()) {
-        const double margin = ctx_->config().vo_map_margin;
-        const ecar::VoStoreConfig& vo = ctx_->config().vo;
-        // The configured bounds are the limit; the map's extent narrows them.
-        structure.vos().setMapBounds((lo - Eigen::Vector3d::Constant(margin)).cwiseMax(vo.map_min),
-                                     (hi + Eigen::Vector3d::Constant(margin)).cwiseMin(vo.map_max));
-      }
     } catch (const ecar::Error& e) {
       NODELET_WARN_THROTTLE(5.0, "device %s: keyframe %u: plane segmentation failed: %s",
                             event.device.c_str(), event.id.value, e.what());
+    }
+    if (lo.x() > hi.x()) return;
+    const double margin = ctx_->config().vo_map_margin;
+    const ecar::VoStoreConfig& vo = ctx_->config().vo;
+    try {
+      // The configured bounds are the limit; the map's extent narrows them.
+      structure.vos().setMapBounds((lo - Eigen::Vector3d::Constant(margin)).cwiseMax(vo.map_min),
+                                   (hi + Eigen::Vector3d::Constant(margin)).cwiseMin(vo.map_max));
+    } catch (const ecar::Error& e) {
+      NODELET_WARN_THROTTLE(5.0, "VO map bounds not updated: %s", e.what());
     }
   }
 

@@ -4,6 +4,8 @@
 #include <chrono>
 #include <set>
 
+#include "ecar_core/error.h"
+
 namespace ecar_server {
 namespace {
 
@@ -25,9 +27,15 @@ Structure::Structure(const ServerConfig& config)
 ecar::VoStore& Structure::vos() {
   std::lock_guard<std::mutex> lock(mutex_);
   if (!vos_) {
+    if (!vos_error_.empty()) throw ecar::Error(vos_error_);
     ecar::VoStoreConfig c = config_.vo;
     c.cell_size = config_.grid.cell_size;
-    vos_ = std::make_unique<ecar::VoStore>(c);
+    try {
+      vos_ = std::make_unique<ecar::VoStore>(c);
+    } catch (const ecar::Error& e) {
+      vos_error_ = e.what();
+      throw;
+    }
   }
   return *vos_;
 }
@@ -105,7 +113,15 @@ VisibleStructure Structure::visible(const ecar::SE3& T_w_c,
   }
   out.planes = planes_.planes(std::vector<ecar::PlaneId>(plane_ids.begin(), plane_ids.end()));
 
-  ecar::VoStore& store = vos();
+  ecar::VoStore* store_ptr = nullptr;
+  try {
+    store_ptr = &vos();
+  } catch (const ecar::Error& e) {
+    out.error = e.what();
+    out.milliseconds = msSince(start);
+    return out;
+  }
+  ecar::VoStore& store = *store_ptr;
   if (store.attachMode() == ecar::VoAttachMode::kKeyFrame) {
     out.objects = store.objectsOfKeyFrames(local_keyframes);
   } else {

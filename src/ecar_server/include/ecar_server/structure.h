@@ -31,6 +31,7 @@ struct VisibleStructure {
   std::vector<ecar::VirtualObject> objects;  ///< live, by increasing id
   std::vector<ecar::CellKey> cells;          ///< cells hit by the sampled rays, sorted
   double milliseconds = 0.0;                 ///< time of the whole computation
+  std::string error;  ///< why objects are missing (the VO store could not be opened)
 };
 
 /// What integrateKeyFrame() did.
@@ -48,8 +49,8 @@ class Structure {
 
   const ecar::PlaneMap& planes() const { return planes_; }
   const ecar::GridMap& grid() const { return grid_; }
-  /// The VO store, opened on the first call (throws ecar::Error naming the file
-  /// when it cannot be opened).
+  /// The VO store, opened on the first call. Throws ecar::Error naming the file
+  /// when it cannot be opened (then on every later call, without retrying).
   ecar::VoStore& vos();
 
   /// The grid caster of a camera (created once; later cameras are assumed the same).
@@ -67,7 +68,8 @@ class Structure {
 
   /// Planes and objects for a frame aligned at T_w_c with these local keyframes:
   /// planes hit by the sampled rays (and those of the local keyframes when
-  /// graph_keyframe_planes); objects: grid mode, the live VOs attached to a
+  /// graph_keyframe_planes); objects (none, with `error` set, when the VO store
+  /// cannot be opened): grid mode, the live VOs attached to a
   /// visible cell (radius 1) or whose position, start or end passes
   /// GridConnection::isVisible; keyframe mode, the VOs of the local keyframes.
   VisibleStructure visible(const ecar::SE3& T_w_c,
@@ -90,6 +92,7 @@ class Structure {
   uint64_t grid_planes_revision_ = 0;
   std::shared_ptr<const ecar::GridConnection> caster_;
   std::unique_ptr<ecar::VoStore> vos_;
+  std::string vos_error_;  ///< why the store could not be opened
   std::map<std::string, std::vector<ecar::CellKey>> device_cells_;
 };
 
