@@ -161,7 +161,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
     ++stats_count_;
     stats_sum_ms_ += v.milliseconds;
     stats_max_ms_ = std::max(stats_max_ms_, v.milliseconds);
-    NODELET_INFO_THROTTLE(10.0,
+    NODELET_INFO_THROTTLE(5.0,
                           "planes and objects per upload: %.2f ms mean, %.2f ms max over %zu "
                           "uploads (last: %s frame %u, %zu planes, %zu objects)",
                           stats_sum_ms_ / stats_count_, stats_max_ms_, stats_count_, device.c_str(),

@@ -92,7 +92,7 @@ class PlaneSegmentationNodelet : public nodelet::Nodelet {
           "%zu cells; segment %.1f ms, integrate %.1f ms, grid %.1f ms",
           event.id.value, input.points.size(), r.observations, r.update.created.size(),
           r.update.updated.size(), r.cells, r.segment_ms, r.integrate_ms, r.grid_ms);
-      NODELET_INFO_THROTTLE(10.0,
+      NODELET_INFO_THROTTLE(5.0,
                             "planes: %zu in the map; keyframe %u: %zu points, %zu planes, %zu "
                             "cells in %.1f + %.1f + %.1f ms (segment, integrate, grid)",
                             structure.planes().size(), event.id.value, input.points.size(),
