@@ -3,7 +3,8 @@
 // commits it to SQLite before answering) and answers on
 // /<device>/interaction_result: accepted with the object's id and version, or
 // rejected with the store's reason. In vo_attach keyframe mode a registration
-// hangs on the keyframe nearest to the object.
+// hangs on the keyframe nearest to the object. A point from rviz's Publish
+// Point tool (/clicked_point, frame "map") registers an ANCHOR owned by "rviz".
 #include <limits>
 #include <map>
 #include <memory>
@@ -11,6 +12,7 @@
 
 #include <ecar_msgs/Interaction.h>
 #include <ecar_msgs/InteractionResult.h>
+#include <geometry_msgs/PointStamped.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 #include <boost/make_shared.hpp>
@@ -26,6 +28,7 @@ namespace ecar_server {
 class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
  public:
   ~InteractionsNodelet() override {
+    clicked_sub_.shutdown();
     if (ctx_) ctx_->removeListener(this);
     std::lock_guard<std::mutex> lock(mutex_);
     devices_.clear();
@@ -65,6 +68,31 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
                  store.numLive(), store.config().database_path.c_str(),
                  ecar::toString(store.attachMode()));
     ctx_->addListener(this);
+    clicked_sub_ = nh.subscribe(kClickedPointTopic, 10, &InteractionsNodelet::onClickedPoint, this);
+  }
+
+  // rviz's Publish Point tool: a new ANCHOR at the clicked point.
+  void onClickedPoint(const geometry_msgs::PointStamped::ConstPtr& msg) {
+    if (!msg->header.frame_id.empty() && msg->header.frame_id != kMapFrame) {
+      NODELET_WARN_THROTTLE(2.0, "rviz: clicked point in frame '%s', not '%s': ignored",
+                            msg->header.frame_id.c_str(), kMapFrame);
+      return;
+    }
+    VoRequest request;
+    request.device = kRvizUser;
+    request.state.kind = ecar::VoKind::kAnchor;
+    request.state.position = Eigen::Vector3d(msg->point.x, msg->point.y, msg->point.z);
+    request.state.r = 255;
+    request.state.g = 200;
+    request.state.b = 0;
+    request.state.width = 0.1f;
+    const ecar::VoOutcome outcome = apply(request);
+    if (outcome.accepted) {
+      NODELET_INFO("rviz: object %u registered at (%.2f, %.2f, %.2f)", outcome.id.value,
+                   msg->point.x, msg->point.y, msg->point.z);
+    } else {
+      NODELET_WARN("rviz: clicked point rejected: %s", outcome.reason.c_str());
+    }
   }
 
   void onInteraction(const std::string& device, const ecar_msgs::Interaction& msg) {
@@ -139,7 +167,11 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
     return best;
   }
 
+  static constexpr const char* kClickedPointTopic = "/clicked_point";
+  static constexpr const char* kRvizUser = "rviz";
+
   std::shared_ptr<ServerContext> ctx_;
+  ros::Subscriber clicked_sub_;
   std::mutex mutex_;  // guards devices_
   std::map<std::string, Topics> devices_;
 };

@@ -60,6 +60,7 @@ import yaml
 import rosgraph
 from ecar_msgs.msg import Interaction, InteractionResult, LocalGraph, Plane, Upload, VirtualObject
 from ecar_msgs.srv import Connect, ConnectRequest
+from geometry_msgs.msg import PointStamped
 from rosgraph_msgs.msg import Log
 from sensor_msgs.msg import CameraInfo
 
@@ -550,6 +551,14 @@ class ServerTest(unittest.TestCase):
         self.assertEqual(res.version, 1)
         vo_id = res.object_id
 
+        # rviz's Publish Point tool: an ANCHOR owned by "rviz" at the same place.
+        clicked = rospy.Publisher("/clicked_point", PointStamped, queue_size=1, latch=True)
+        self.assertTrue(wait_subscribed(clicked))
+        point = PointStamped()
+        point.header.frame_id = "map"
+        point.point = obj.position
+        clicked.publish(point)
+
         # Bad interactions: rejected with a reason.
         nan = floor_line(graph, floor, self.dataset.camera, 319.5, 400.0)
         nan.start.x = float("nan")
@@ -582,6 +591,9 @@ class ServerTest(unittest.TestCase):
         self.assertLess(math.dist((got.start.x, got.start.y, got.start.z),
                                   (obj.start.x, obj.start.y, obj.start.z)), 1e-6)
         self.assertEqual(got.owner, "device_0")
+        self.assertTrue(any(o.owner == "rviz" and o.kind == VirtualObject.ANCHOR
+                            for o in device.graphs[carried[0]][0].objects),
+                        "the rviz clicked point is not in the local graph")
 
         # kill -9 and restart on the same database.
         server.kill9()
