@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include "ecar_core/error.h"
+#include "ecar_server/markers.h"
 
 namespace ecar_server {
 namespace {
@@ -139,6 +140,36 @@ TEST(StructureTest, AnUnopenableStoreLeavesThePlanes) {
   EXPECT_TRUE(v.objects.empty());
   EXPECT_NE(v.error.find("nonexistent_dir_ecar"), std::string::npos) << v.error;
   EXPECT_THROW(s.vos(), ecar::Error);
+}
+
+TEST(StructureTest, MarkersShowPlanesObjectsAndCells) {
+  ecar::Plane floor;
+  floor.id = ecar::PlaneId(1);
+  floor.label = ecar::PlaneLabel::kFloor;
+  floor.boundary = {{0, 0, 0}, {2, 0, 0}, {2, 2, 0}, {0, 2, 0}};
+  ecar::VirtualObject line = lineAt(1.0, 1.0);
+  line.id = ecar::ObjectId(7);
+  line.r = 255;
+  ecar::VirtualObject gone = line;
+  gone.id = ecar::ObjectId(8);
+  gone.deleted = true;
+  const DeviceCells cells{ecar::DeviceId(2), {{0, 0, 0}, {1, 0, 0}}};
+  const visualization_msgs::MarkerArray m =
+      structureMarkers({floor}, {line, gone}, {cells}, 0.1, "map", ros::Time(1.0));
+  ASSERT_EQ(m.markers.size(), 3u);  // planes, one live object, one device's cells
+  EXPECT_EQ(m.markers[0].ns, "planes");
+  EXPECT_EQ(m.markers[0].points.size(), 6u);  // a quad: two triangles
+  EXPECT_EQ(m.markers[0].colors[0].g, labelColour(ecar::PlaneLabel::kFloor).g);
+  EXPECT_LT(m.markers[0].colors[0].a, 1.0f);
+  EXPECT_EQ(m.markers[1].ns, "objects");
+  EXPECT_EQ(m.markers[1].id, 7);
+  EXPECT_FLOAT_EQ(m.markers[1].scale.x, 0.05f);
+  EXPECT_FLOAT_EQ(m.markers[1].color.r, 1.0f);
+  EXPECT_EQ(m.markers[1].points.size(), 2u);
+  EXPECT_EQ(m.markers[2].ns, "cells");
+  EXPECT_EQ(m.markers[2].id, 2);
+  EXPECT_EQ(m.markers[2].points.size(), 2u);
+  EXPECT_NEAR(m.markers[2].points[1].x, 0.15, 1e-9);
 }
 
 }  // namespace
