@@ -264,4 +264,164 @@ cv::Mat decodeImage(const ecar_msgs::Upload& upload) {
   return image;
 }
 
+namespace {
+
+geometry_msgs::Point toPointMsg(const Eigen::Vector3d& p) {
+  geometry_msgs::Point m;
+  m.x = p.x();
+  m.y = p.y();
+  m.z = p.z();
+  return m;
+}
+
+Eigen::Vector3d fromPointMsg(const geometry_msgs::Point& m) { return {m.x, m.y, m.z}; }
+
+geometry_msgs::Vector3 toVectorMsg(const Eigen::Vector3d& v) {
+  geometry_msgs::Vector3 m;
+  m.x = v.x();
+  m.y = v.y();
+  m.z = v.z();
+  return m;
+}
+
+Eigen::Vector3d fromVectorMsg(const geometry_msgs::Vector3& m) { return {m.x, m.y, m.z}; }
+
+}  // namespace
+
+ecar_msgs::Plane toMsg(const ecar::Plane& plane) {
+  ecar_msgs::Plane m;
+  m.id = plane.id.value;
+  m.label = static_cast<uint8_t>(plane.label);
+  m.normal = toVectorMsg(plane.normal);
+  m.offset = plane.offset;
+  m.boundary.reserve(plane.boundary.size());
+  for (const auto& p : plane.boundary) m.boundary.push_back(toPointMsg(p));
+  m.version = plane.version;
+  m.num_points = plane.num_points;
+  return m;
+}
+
+ecar::Plane fromMsg(const ecar_msgs::Plane& msg) {
+  if (msg.label > ecar_msgs::Plane::OTHER) {
+    throw ecar::Error("plane.label: unknown value " + std::to_string(msg.label));
+  }
+  ecar::Plane p;
+  p.id = ecar::PlaneId(msg.id);
+  p.label = static_cast<ecar::PlaneLabel>(msg.label);
+  p.normal = fromVectorMsg(msg.normal);
+  p.offset = msg.offset;
+  p.boundary.reserve(msg.boundary.size());
+  for (const auto& b : msg.boundary) p.boundary.push_back(fromPointMsg(b));
+  p.version = msg.version;
+  p.num_points = msg.num_points;
+  return p;
+}
+
+ecar_msgs::VirtualObject toMsg(const ecar::VirtualObject& vo) {
+  ecar_msgs::VirtualObject m;
+  m.id = vo.id.value;
+  m.kind = static_cast<uint8_t>(vo.kind);
+  m.position = toPointMsg(vo.position);
+  m.start = toPointMsg(vo.start);
+  m.end = toPointMsg(vo.end);
+  m.r = vo.r;
+  m.g = vo.g;
+  m.b = vo.b;
+  m.width = vo.width;
+  m.normal = toVectorMsg(vo.normal);
+  m.plane_id = vo.plane.value;
+  m.owner = vo.owner;
+  m.version = vo.version;
+  m.deleted = vo.deleted;
+  return m;
+}
+
+ecar::VirtualObject fromMsg(const ecar_msgs::VirtualObject& msg) {
+  if (msg.kind > ecar_msgs::VirtualObject::ANCHOR) {
+    throw ecar::Error("object.kind: unknown value " + std::to_string(msg.kind));
+  }
+  ecar::VirtualObject vo;
+  vo.id = ecar::ObjectId(msg.id);
+  vo.kind = static_cast<ecar::VoKind>(msg.kind);
+  vo.position = fromPointMsg(msg.position);
+  vo.start = fromPointMsg(msg.start);
+  vo.end = fromPointMsg(msg.end);
+  vo.r = msg.r;
+  vo.g = msg.g;
+  vo.b = msg.b;
+  vo.width = msg.width;
+  vo.normal = fromVectorMsg(msg.normal);
+  vo.plane = ecar::PlaneId(msg.plane_id);
+  vo.owner = msg.owner;
+  vo.version = msg.version;
+  vo.deleted = msg.deleted;
+  return vo;
+}
+
+ecar_msgs::Interaction toMsg(const VoRequest& request) {
+  ecar_msgs::Interaction m;
+  m.header.frame_id = "map";
+  m.device_id = request.device;
+  m.request_id = request.request_id;
+  switch (request.type) {
+    case VoRequest::Type::kRegister:
+      m.type = ecar_msgs::Interaction::REGISTER;
+      break;
+    case VoRequest::Type::kManipulate:
+      m.type = ecar_msgs::Interaction::MANIPULATE;
+      break;
+    case VoRequest::Type::kDelete:
+      m.type = ecar_msgs::Interaction::DELETE;
+      break;
+  }
+  m.object_id = request.object.value;
+  m.object = toMsg(request.state);
+  m.base_version = request.base_version;
+  return m;
+}
+
+VoRequest fromMsg(const ecar_msgs::Interaction& msg) {
+  VoRequest r;
+  r.device = msg.device_id;
+  r.request_id = msg.request_id;
+  switch (msg.type) {
+    case ecar_msgs::Interaction::REGISTER:
+      r.type = VoRequest::Type::kRegister;
+      break;
+    case ecar_msgs::Interaction::MANIPULATE:
+      r.type = VoRequest::Type::kManipulate;
+      break;
+    case ecar_msgs::Interaction::DELETE:
+      r.type = VoRequest::Type::kDelete;
+      break;
+    default:
+      throw ecar::Error("type: unknown value " + std::to_string(msg.type));
+  }
+  r.object = ecar::ObjectId(msg.object_id);
+  if (r.type != VoRequest::Type::kDelete) r.state = fromMsg(msg.object);
+  r.base_version = msg.base_version;
+  return r;
+}
+
+ecar_msgs::InteractionResult toMsg(const VoRequest& request, const ecar::VoOutcome& outcome) {
+  ecar_msgs::InteractionResult m;
+  m.header.frame_id = "map";
+  m.device_id = request.device;
+  m.request_id = request.request_id;
+  m.accepted = outcome.accepted;
+  m.object_id = outcome.id.value;
+  m.version = outcome.version;
+  m.reason = outcome.reason;
+  return m;
+}
+
+ecar::VoOutcome outcomeFromMsg(const ecar_msgs::InteractionResult& msg) {
+  ecar::VoOutcome o;
+  o.accepted = msg.accepted;
+  o.id = ecar::ObjectId(msg.object_id);
+  o.version = msg.version;
+  o.reason = msg.reason;
+  return o;
+}
+
 }  // namespace ecar_server

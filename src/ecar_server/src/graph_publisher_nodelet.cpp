@@ -1,9 +1,14 @@
 // GraphPublisher: for each tracked frame, builds the device's local graph
 // (ecar_core's LocalGraphBuilder with the device's mirror) and publishes it on
-// /<device>/local_graph with the timing fields.
+// /<device>/local_graph with the timing fields. A tracked frame's graph also
+// carries the planes near the aligned pose and the virtual objects that reach
+// it (Structure::visible), plus, once, the tombstone of every object the
+// device was sent and that was deleted since.
+#include <algorithm>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <vector>
 
 #include <ecar_msgs/LocalGraph.h>
 #include <ecar_msgs/TrackedFrame.h>
@@ -38,6 +43,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
   void onDeviceRemoved(const DeviceInfo& device) override {
     std::lock_guard<std::mutex> lock(mutex_);
     publishers_.erase(device.name);
+    sent_objects_.erase(device.name);
   }
 
  private:
@@ -94,6 +100,10 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
                             msg->device_id.c_str(), msg->frame_index, e.what());
       return;
     }
+    if (msg->status == ecar_msgs::LocalGraph::OK ||
+        msg->status == ecar_msgs::LocalGraph::RELOCALISED) {
+      addStructure(*slam, result, msg->device_id, graph.get());
+    }
     graph->upload_sent = msg->upload_sent;
     graph->server_received = msg->server_received;
     graph->tracking_time = msg->tracking_time;
@@ -102,12 +112,76 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
     pub.publish(graph);
   }
 
+  // Planes and objects for the aligned pose, tombstones of objects the device
+  // holds that were deleted, and the computation's timing statistics.
+  void addStructure(const ecar::SlamSystem& slam, const ecar::TrackResult& result,
+                    const std::string& device, ecar_msgs::LocalGraph* graph) {
+    Structure& structure = ctx_->structure();
+    VisibleStructure v;
+    try {
+      v = structure.visible(result.T_w_c, result.local_keyframes,
+                            *structure.gridConnection(slam.camera()));
+    } catch (const ecar::Error& e) {
+      NODELET_WARN_THROTTLE(5.0, "device %s: no planes or objects in local graph %u: %s",
+                            device.c_str(), graph->frame_index, e.what());
+      return;
+    }
+    if (!v.error.empty()) {
+      NODELET_WARN_THROTTLE(5.0, "device %s: no objects in local graph %u: %s", device.c_str(),
+                            graph->frame_index, v.error.c_str());
+    }
+    graph->planes.reserve(v.planes.size());
+    for (const auto& p : v.planes) graph->planes.push_back(toMsg(p));
+    graph->objects.reserve(v.objects.size());
+    std::vector<ecar::ObjectId> gone;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      std::map<ecar::ObjectId, uint32_t>& sent = sent_objects_[device];
+      for (const auto& vo : v.objects) sent[vo.id] = vo.version;
+      for (const auto& kv : sent) {
+        if (!std::binary_search(v.objects.begin(), v.objects.end(), kv.first,
+                                [](const auto& a, const auto& b) { return idOf(a) < idOf(b); })) {
+          gone.push_back(kv.first);
+        }
+      }
+    }
+    for (const auto& vo : v.objects) graph->objects.push_back(toMsg(vo));
+    if (!gone.empty()) {
+      std::vector<ecar::ObjectId> done;
+      for (const auto& vo : structure.vos().objects(gone)) {
+        if (!vo.deleted) continue;  // still live, out of view: the device keeps it
+        graph->objects.push_back(toMsg(vo));
+        done.push_back(vo.id);
+      }
+      std::lock_guard<std::mutex> lock(mutex_);
+      std::map<ecar::ObjectId, uint32_t>& sent = sent_objects_[device];
+      for (const auto& id : done) sent.erase(id);
+    }
+    structure.setDeviceCells(device, std::move(v.cells));
+    ++stats_count_;
+    stats_sum_ms_ += v.milliseconds;
+    stats_max_ms_ = std::max(stats_max_ms_, v.milliseconds);
+    NODELET_INFO_THROTTLE(5.0,
+                          "planes and objects per upload: %.2f ms mean, %.2f ms max over %zu "
+                          "uploads (last: %s frame %u, %zu planes, %zu objects)",
+                          stats_sum_ms_ / stats_count_, stats_max_ms_, stats_count_, device.c_str(),
+                          graph->frame_index, graph->planes.size(), graph->objects.size());
+  }
+
+  static ecar::ObjectId idOf(const ecar::VirtualObject& vo) { return vo.id; }
+  static ecar::ObjectId idOf(ecar::ObjectId id) { return id; }
+
   ServerConfig config_;
   std::shared_ptr<ServerContext> ctx_;
   ecar::LocalGraphBuilder builder_;
   ros::Subscriber tracked_sub_;
   std::mutex mutex_;  // guards publishers_
   std::map<std::string, ros::Publisher> publishers_;
+  /// Per device: objects sent to it (id -> version), to send their tombstones.
+  std::map<std::string, std::map<ecar::ObjectId, uint32_t>> sent_objects_;
+  // Timing of Structure::visible (the tracked-frame callback runs one at a time).
+  size_t stats_count_ = 0;
+  double stats_sum_ms_ = 0.0, stats_max_ms_ = 0.0;
 };
 
 }  // namespace ecar_server

@@ -1,8 +1,11 @@
 #include "ecar_server/markers.h"
 
+#include <algorithm>
 #include <array>
 
 #include <geometry_msgs/Point.h>
+
+#include "ecar_core/grid.h"
 
 namespace ecar_server {
 namespace {
@@ -85,6 +88,77 @@ visualization_msgs::MarkerArray mapMarkers(const ecar::Map& map,
     arrow.points.push_back(toPoint(centre));
     arrow.points.push_back(toPoint(centre + 0.4 * c.T_w_c.linear().col(2)));
     out.markers.push_back(std::move(arrow));
+  }
+  return out;
+}
+
+std_msgs::ColorRGBA labelColour(ecar::PlaneLabel label) {
+  std_msgs::ColorRGBA c;
+  c.a = 0.35f;
+  switch (label) {
+    case ecar::PlaneLabel::kFloor:
+      c.r = 0.2f, c.g = 0.8f, c.b = 0.2f;
+      break;
+    case ecar::PlaneLabel::kWall:
+      c.r = 0.2f, c.g = 0.4f, c.b = 0.9f;
+      break;
+    case ecar::PlaneLabel::kCeiling:
+      c.r = 0.9f, c.g = 0.8f, c.b = 0.2f;
+      break;
+    case ecar::PlaneLabel::kOther:
+      c.r = c.g = c.b = 0.6f;
+      break;
+  }
+  return c;
+}
+
+visualization_msgs::MarkerArray structureMarkers(const std::vector<ecar::Plane>& planes,
+                                                 const std::vector<ecar::VirtualObject>& objects,
+                                                 const std::vector<DeviceCells>& cells,
+                                                 double cell_size, const std::string& frame,
+                                                 const ros::Time& stamp) {
+  visualization_msgs::MarkerArray out;
+  auto polygons = marker("planes", 0, visualization_msgs::Marker::TRIANGLE_LIST, frame, stamp);
+  polygons.scale.x = polygons.scale.y = polygons.scale.z = 1.0;
+  for (const auto& p : planes) {
+    const std_msgs::ColorRGBA colour = labelColour(p.label);
+    for (size_t i = 1; i + 1 < p.boundary.size(); ++i) {
+      for (size_t k : {size_t{0}, i, i + 1}) {
+        polygons.points.push_back(toPoint(p.boundary[k]));
+        polygons.colors.push_back(colour);
+      }
+    }
+  }
+  if (!polygons.points.empty()) out.markers.push_back(std::move(polygons));
+  for (const auto& vo : objects) {
+    if (vo.deleted) continue;
+    const bool line = vo.kind == ecar::VoKind::kLine;
+    auto m =
+        marker("objects", static_cast<int>(vo.id.value),
+               line ? visualization_msgs::Marker::LINE_LIST : visualization_msgs::Marker::SPHERE,
+               frame, stamp);
+    m.color.r = vo.r / 255.0f;
+    m.color.g = vo.g / 255.0f;
+    m.color.b = vo.b / 255.0f;
+    if (line) {
+      m.scale.x = std::max(0.005f, vo.width);
+      m.points.push_back(toPoint(vo.start));
+      m.points.push_back(toPoint(vo.end));
+    } else {
+      m.scale.x = m.scale.y = m.scale.z = std::max(0.05f, vo.width);
+      m.pose.position = toPoint(vo.position);
+    }
+    out.markers.push_back(std::move(m));
+  }
+  for (const auto& d : cells) {
+    auto cubes = marker("cells", static_cast<int>(d.device.value),
+                        visualization_msgs::Marker::CUBE_LIST, frame, stamp);
+    cubes.scale.x = cubes.scale.y = cubes.scale.z = 0.9 * cell_size;
+    cubes.color = deviceColour(d.device);
+    cubes.color.a = 0.5f;
+    cubes.points.reserve(d.cells.size());
+    for (const auto& c : d.cells) cubes.points.push_back(toPoint(ecar::cellCenter(c, cell_size)));
+    out.markers.push_back(std::move(cubes));
   }
   return out;
 }

@@ -53,6 +53,15 @@ void ServerConfig::validate() const {
   if (orb_features < 100 || orb_features > 100000) fail("orb_features", "must be in [100, 100000]");
   if (local_keyframes < 2) fail("local_keyframes", "must be >= 2");
   if (!(camera_tolerance >= 0.0)) fail("camera_tolerance", "must be >= 0");
+  planes.validate();
+  grid.validate();
+  try {
+    vo.validate();
+  } catch (const ecar::Error& e) {
+    fail("vo", e.what());
+  }
+  if (vo.database_path.empty()) fail("vo.database", "must not be empty");
+  if (!(vo_map_margin >= 0.0)) fail("vo.map_margin", "must be >= 0 m");
 }
 
 ecar::SlamConfig ServerConfig::slamConfig() const {
@@ -73,7 +82,7 @@ ecar::LocalGraphConfig ServerConfig::localGraphConfig() const {
 }
 
 ServerContext::ServerContext(const ServerConfig& config, uint32_t start_epoch)
-    : config_(config), start_epoch_(start_epoch) {
+    : config_(config), start_epoch_(start_epoch), structure_(std::make_unique<Structure>(config)) {
   config_.validate();
 }
 

@@ -1,5 +1,8 @@
 // Visualizer: /ecar/markers (throttled to marker_rate, only when subscribed)
-// and tf map -> <device>/camera_server for every tracked frame.
+// and tf map -> <device>/camera_server for every tracked frame. The markers
+// show the map points, keyframes and cameras (markers.h mapMarkers), the planes
+// coloured by label, the live virtual objects and the cells each device last
+// saw (structureMarkers).
 #include <map>
 #include <memory>
 #include <mutex>
@@ -29,6 +32,7 @@ class VisualizerNodelet : public nodelet::Nodelet, public ContextListener {
   void onDeviceRemoved(const DeviceInfo& device) override {
     std::lock_guard<std::mutex> lock(mutex_);
     cameras_.erase(device.name);
+    ctx_->structure().eraseDevice(device.name);
   }
 
  private:
@@ -78,8 +82,26 @@ class VisualizerNodelet : public nodelet::Nodelet, public ContextListener {
       std::lock_guard<std::mutex> lock(mutex_);
       for (const auto& kv : cameras_) cameras.push_back(kv.second);
     }
-    markers_pub_.publish(boost::make_shared<visualization_msgs::MarkerArray>(
-        mapMarkers(slam->map(), cameras, kMapFrame, ros::Time::now())));
+    const ros::Time now = ros::Time::now();
+    auto markers = boost::make_shared<visualization_msgs::MarkerArray>();
+    // Everything is republished each time: drop what is gone (deleted objects).
+    visualization_msgs::Marker clear;
+    clear.header.frame_id = kMapFrame;
+    clear.action = visualization_msgs::Marker::DELETEALL;
+    markers->markers.push_back(clear);
+    visualization_msgs::MarkerArray map = mapMarkers(slam->map(), cameras, kMapFrame, now);
+    markers->markers.insert(markers->markers.end(), map.markers.begin(), map.markers.end());
+    Structure& structure = ctx_->structure();
+    std::vector<DeviceCells> cells;
+    for (auto& kv : structure.deviceCells()) {
+      const std::optional<DeviceInfo> info = ctx_->device(kv.first);
+      if (info) cells.push_back(DeviceCells{info->id, std::move(kv.second)});
+    }
+    visualization_msgs::MarkerArray more =
+        structureMarkers(structure.planes().planes(), structure.vos().allObjects(), cells,
+                         ctx_->config().grid.cell_size, kMapFrame, now);
+    markers->markers.insert(markers->markers.end(), more.markers.begin(), more.markers.end());
+    markers_pub_.publish(markers);
   }
 
   std::shared_ptr<ServerContext> ctx_;

@@ -249,5 +249,110 @@ TEST(ConversionsTest, ImageDecodesOrNamesTheField) {
   EXPECT_THROW(decodeImage(upload), ecar::Error);
 }
 
+TEST(ConversionsTest, PlaneRoundTrips) {
+  ecar::Plane p;
+  p.id = ecar::PlaneId(9);
+  p.label = ecar::PlaneLabel::kWall;
+  p.normal = Eigen::Vector3d(0.6, 0.8, 0.0);
+  p.offset = -1.25;
+  p.boundary = {{0, 0, 0}, {1, 0, 0.5}, {1, 0, 2}};
+  p.version = 4;
+  p.num_points = 321;
+  const ecar::Plane q = fromMsg(toMsg(p));
+  EXPECT_EQ(q.id, p.id);
+  EXPECT_EQ(q.label, p.label);
+  EXPECT_EQ(q.normal, p.normal);
+  EXPECT_EQ(q.offset, p.offset);
+  EXPECT_EQ(q.boundary, p.boundary);
+  EXPECT_EQ(q.version, 4u);
+  EXPECT_EQ(q.num_points, 321u);
+  EXPECT_EQ(toMsg(p).label, ecar_msgs::Plane::WALL);
+  ecar_msgs::Plane bad = toMsg(p);
+  bad.label = 7;
+  EXPECT_THROW(fromMsg(bad), ecar::Error);
+}
+
+ecar::VirtualObject someObject() {
+  ecar::VirtualObject vo;
+  vo.id = ecar::ObjectId(12);
+  vo.kind = ecar::VoKind::kLine;
+  vo.start = Eigen::Vector3d(1.0, 2.0, 0.0);
+  vo.end = Eigen::Vector3d(1.5, 2.0, 0.0);
+  vo.position = (vo.start + vo.end) / 2;
+  vo.r = 10;
+  vo.g = 200;
+  vo.b = 30;
+  vo.width = 0.05f;
+  vo.normal = Eigen::Vector3d::UnitZ();
+  vo.plane = ecar::PlaneId(3);
+  vo.owner = "device_0";
+  vo.version = 5;
+  vo.deleted = true;
+  return vo;
+}
+
+TEST(ConversionsTest, VirtualObjectRoundTrips) {
+  const ecar::VirtualObject vo = someObject();
+  const ecar::VirtualObject q = fromMsg(toMsg(vo));
+  EXPECT_EQ(q.id, vo.id);
+  EXPECT_EQ(q.kind, vo.kind);
+  EXPECT_EQ(q.position, vo.position);
+  EXPECT_EQ(q.start, vo.start);
+  EXPECT_EQ(q.end, vo.end);
+  EXPECT_EQ(q.r, 10);
+  EXPECT_EQ(q.g, 200);
+  EXPECT_EQ(q.b, 30);
+  EXPECT_EQ(q.width, 0.05f);
+  EXPECT_EQ(q.normal, vo.normal);
+  EXPECT_EQ(q.plane, vo.plane);
+  EXPECT_EQ(q.owner, "device_0");
+  EXPECT_EQ(q.version, 5u);
+  EXPECT_TRUE(q.deleted);
+  ecar_msgs::VirtualObject bad = toMsg(vo);
+  bad.kind = 2;
+  EXPECT_THROW(fromMsg(bad), ecar::Error);
+}
+
+TEST(ConversionsTest, InteractionAndResultRoundTrip) {
+  VoRequest r;
+  r.device = "device_1";
+  r.request_id = 77;
+  r.type = VoRequest::Type::kManipulate;
+  r.object = ecar::ObjectId(12);
+  r.state = someObject();
+  r.base_version = 4;
+  const ecar_msgs::Interaction m = toMsg(r);
+  EXPECT_EQ(m.type, ecar_msgs::Interaction::MANIPULATE);
+  const VoRequest q = fromMsg(m);
+  EXPECT_EQ(q.device, r.device);
+  EXPECT_EQ(q.request_id, 77u);
+  EXPECT_EQ(q.type, r.type);
+  EXPECT_EQ(q.object, r.object);
+  EXPECT_EQ(q.state.end, r.state.end);
+  EXPECT_EQ(q.state.owner, r.state.owner);
+  EXPECT_EQ(q.base_version, 4u);
+  for (auto type : {VoRequest::Type::kRegister, VoRequest::Type::kDelete}) {
+    r.type = type;
+    EXPECT_EQ(fromMsg(toMsg(r)).type, type);
+  }
+  ecar_msgs::Interaction bad = m;
+  bad.type = 9;
+  EXPECT_THROW(fromMsg(bad), ecar::Error);
+
+  ecar::VoOutcome o;
+  o.accepted = false;
+  o.id = ecar::ObjectId(12);
+  o.version = 6;
+  o.reason = "stale base_version 4";
+  const ecar_msgs::InteractionResult res = toMsg(r, o);
+  EXPECT_EQ(res.device_id, "device_1");
+  EXPECT_EQ(res.request_id, 77u);
+  const ecar::VoOutcome p = outcomeFromMsg(res);
+  EXPECT_FALSE(p.accepted);
+  EXPECT_EQ(p.id, o.id);
+  EXPECT_EQ(p.version, 6u);
+  EXPECT_EQ(p.reason, o.reason);
+}
+
 }  // namespace
 }  // namespace ecar_server

@@ -22,6 +22,17 @@ edgeslam mode (the server default here) and device_1 in ecar mode. Asserts:
 edgeslam graphs carry keyframes and map points with descriptors and no
 points/positions, and are several times larger than the ecar graphs.
 
+~scenario "vo": the test starts the server itself (roslaunch server.launch
+with a temporary VO database) so that it can kill it. One fake device maps the
+first part of the sequence; the server's local graphs carry planes, among them
+a FLOOR. The device registers a line on that floor (REGISTER) in front of its
+camera and gets an accepted InteractionResult; the next local graphs carry the
+object. A NaN line, a MANIPULATE of an unknown id and a line far out of the map
+are rejected with a reason (and warned naming the device). Then the server is
+killed (SIGKILL) and restarted on the same database: the object is in the
+database at its version and, after the device re-maps the same images, in the
+new server's local graphs.
+
 Prints the measured figures (bytes, bytes per point, server time).
 """
 
@@ -30,6 +41,8 @@ import io
 import math
 import os
 import shutil
+import signal
+import sqlite3
 import statistics
 import subprocess
 import sys
@@ -37,14 +50,17 @@ import tempfile
 import threading
 import time
 import unittest
+import xmlrpc.client
 
 import cv2
 import rospkg
 import rospy
 import rostest
 import yaml
-from ecar_msgs.msg import LocalGraph, Upload
+import rosgraph
+from ecar_msgs.msg import Interaction, InteractionResult, LocalGraph, Plane, Upload, VirtualObject
 from ecar_msgs.srv import Connect, ConnectRequest
+from geometry_msgs.msg import PointStamped
 from rosgraph_msgs.msg import Log
 from sensor_msgs.msg import CameraInfo
 
@@ -114,6 +130,9 @@ class FakeDevice:
         self.resend_px = []  # image shift of the move seen from the graph's camera
         self.resend_dist = []
         self.pub = None
+        self.results = {}  # request_id -> InteractionResult
+        self.interaction_pub = None
+        self.result_sub = None
 
     def connect(self):
         rospy.wait_for_service("/ecar/connect", timeout=30.0)
@@ -125,7 +144,36 @@ class FakeDevice:
             self.sub = rospy.Subscriber(res.local_graph_topic, LocalGraph, self.on_graph,
                                         queue_size=50, tcp_nodelay=True)
             self.pub = rospy.Publisher(res.upload_topic, Upload, queue_size=20)
+            if self.interaction_pub is None:
+                self.interaction_pub = rospy.Publisher(res.interaction_topic, Interaction,
+                                                       queue_size=20)
+                self.result_sub = rospy.Subscriber("/%s/interaction_result" % self.name,
+                                                   InteractionResult, self.on_result,
+                                                   queue_size=50)
         return res
+
+    def on_result(self, msg):
+        with self.lock:
+            self.results[msg.request_id] = msg
+            self.lock.notify_all()
+
+    def interact(self, request_id, type_, obj, object_id=0, base_version=0, timeout=10.0):
+        """Sends an Interaction and waits for its InteractionResult (None on timeout)."""
+        msg = Interaction()
+        msg.header.stamp = rospy.Time.now()
+        msg.header.frame_id = "map"
+        msg.device_id = self.name
+        msg.request_id = request_id
+        msg.type = type_
+        msg.object_id = object_id
+        msg.object = obj
+        msg.base_version = base_version
+        self.interaction_pub.publish(msg)
+        end = time.time() + timeout
+        with self.lock:
+            while request_id not in self.results and time.time() < end:
+                self.lock.wait(0.05)
+            return self.results.get(request_id)
 
     def on_graph(self, msg):
         size = serialized_length(msg)
@@ -210,6 +258,86 @@ def render(frames):
     return out
 
 
+def rotation(q):
+    """3x3 rotation (rows) of a geometry_msgs/Quaternion."""
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+
+
+def dot(a, b):
+    return sum(x * y for x, y in zip(a, b))
+
+
+def floor_line(graph, plane, camera, u, v, half_length=0.2):
+    """A LINE VirtualObject on `plane` where pixel (u, v) of the graph's pose hits it."""
+    R = rotation(graph.pose.orientation)
+    t = [graph.pose.position.x, graph.pose.position.y, graph.pose.position.z]
+    r_c = [(u - camera["cx"]) / camera["fx"], (v - camera["cy"]) / camera["fy"], 1.0]
+    d = [dot(R[i], r_c) for i in range(3)]
+    n = [plane.normal.x, plane.normal.y, plane.normal.z]
+    s = -(dot(n, t) + plane.offset) / dot(n, d)
+    if s <= 0:
+        return None
+    p = [t[i] + s * d[i] for i in range(3)]
+    x = [R[i][0] for i in range(3)]  # camera x, projected into the plane
+    k = dot(x, n)
+    a = [x[i] - k * n[i] for i in range(3)]
+    norm = math.sqrt(dot(a, a))
+    a = [c / norm for c in a]
+    obj = VirtualObject()
+    obj.kind = VirtualObject.LINE
+    obj.start.x, obj.start.y, obj.start.z = [p[i] - half_length * a[i] for i in range(3)]
+    obj.end.x, obj.end.y, obj.end.z = [p[i] + half_length * a[i] for i in range(3)]
+    obj.position.x, obj.position.y, obj.position.z = p
+    obj.r, obj.g, obj.b = 255, 40, 40
+    obj.width = 0.05
+    obj.normal = plane.normal
+    obj.plane_id = plane.id
+    return obj
+
+
+class Server:
+    """server.launch run by the test (so that it can kill -9 it)."""
+
+    def __init__(self, database, vo_attach="grid"):
+        root = os.path.join(rospkg.RosPack().get_path("ecar_server"), "..", "..")
+        self.proc = subprocess.Popen(
+            ["roslaunch", os.path.join(root, "launch", "server.launch"), "output:=log",
+             "database:=" + database, "vo_attach:=" + vo_attach],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+
+    def manager_pid(self):
+        uri = rosgraph.Master("/fake_device_test").lookupNode("/edge_server")
+        return xmlrpc.client.ServerProxy(uri).getPid("/fake_device_test")[2]
+
+    def kill9(self):
+        os.kill(self.manager_pid(), signal.SIGKILL)
+        time.sleep(0.5)
+        self.stop()
+
+    def stop(self):
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGINT)
+            try:
+                self.proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+
+
+def wait_service_gone(name, timeout=10.0):
+    end = time.time() + timeout
+    while time.time() < end:
+        try:
+            rospy.wait_for_service(name, timeout=0.2)
+        except rospy.ROSException:
+            return True
+        time.sleep(0.2)
+    return False
+
+
 def summary(label, graphs):
     tracked = [(m, b) for m, b in graphs if m.status in TRACKED]
     if not tracked:
@@ -235,6 +363,7 @@ class ServerTest(unittest.TestCase):
         cls.folder = render(cls.frames)
         cls.dataset = Dataset(cls.folder)
         cls.warnings = []
+        cls.infos = []
         cls.log_sub = rospy.Subscriber("/rosout", Log, cls.on_log, queue_size=500)
 
     @classmethod
@@ -245,6 +374,8 @@ class ServerTest(unittest.TestCase):
     def on_log(cls, msg):
         if msg.level >= Log.WARN:
             cls.warnings.append(msg.msg)
+        elif msg.level == Log.INFO:
+            cls.infos.append(msg.msg)
 
     def warned(self, *words):
         return any(all(w in text for w in words) for text in list(self.warnings))
@@ -260,6 +391,8 @@ class ServerTest(unittest.TestCase):
         scenario = rospy.get_param("~scenario", "bad_input")
         if scenario == "edgeslam":
             self.run_edgeslam()
+        elif scenario == "vo":
+            self.run_vo()
         else:
             self.run_bad_input()
 
@@ -365,6 +498,134 @@ class ServerTest(unittest.TestCase):
         print("[edgeslam vs ecar] median bytes %.0f vs %.0f (ratio %.1f)"
               % (edge_bytes, ecar_bytes, edge_bytes / ecar_bytes))
         self.assertGreaterEqual(edge_bytes, 3 * ecar_bytes)
+
+
+    def upload_all(self, device, frames, first_reset):
+        for k, i in enumerate(frames):
+            # The first upload to a restarted server may go to the killed one's
+            # stale connection: send it again until answered.
+            for attempt in range(6 if k == 0 else 1):
+                device.upload(i, reset=(first_reset and k == 0))
+                if device.wait_graph(i, timeout=3.0 if k == 0 else 15.0):
+                    break
+            self.assertIsNotNone(device.wait_graph(i, timeout=0.0),
+                                 "no local graph for upload %d" % i)
+
+    def run_vo(self):
+        folder = tempfile.mkdtemp(prefix="ecar_vo_test_")
+        database = os.path.join(folder, "vo.sqlite")
+        server = Server(database)
+        try:
+            self.vo_session(server, database)
+        finally:
+            server.stop()
+            shutil.rmtree(folder, ignore_errors=True)
+
+    def vo_session(self, server, database):
+        device = FakeDevice("device_0", self.dataset)
+        self.assertTrue(device.connect().accepted)
+        self.assertTrue(wait_subscribed(device.pub))
+        good = list(range(0, len(self.dataset.frames), self.every))
+        first, second = good[:len(good) * 2 // 3], good[len(good) * 2 // 3:]
+        self.upload_all(device, first, True)
+        # Planes: the latest tracked graphs carry them, a FLOOR among them.
+        tracked = [device.graphs[i][0] for i in first if device.graphs[i][0].status in TRACKED]
+        self.assertTrue(tracked, "never tracked")
+        graph = tracked[-1]
+        labels = collections.Counter(p.label for p in graph.planes)
+        print("[vo] planes in the last graph: %d (floor %d, wall %d, ceiling %d, other %d)"
+              % (len(graph.planes), labels[Plane.FLOOR], labels[Plane.WALL],
+                 labels[Plane.CEILING], labels[Plane.OTHER]))
+        floors = [p for p in graph.planes if p.label == Plane.FLOOR]
+        self.assertTrue(floors, "no FLOOR plane in the local graph: %s" % labels)
+        floor = max(floors, key=lambda p: p.num_points)
+        self.assertTrue(all(p.version >= 1 for p in graph.planes))
+        obj = floor_line(graph, floor, self.dataset.camera, 319.5, 400.0)
+        self.assertIsNotNone(obj, "the floor is not below the camera")
+
+        # Register: accepted, with an id and version 1.
+        res = device.interact(1, Interaction.REGISTER, obj)
+        self.assertIsNotNone(res, "no InteractionResult for the REGISTER")
+        self.assertTrue(res.accepted, res.reason)
+        self.assertGreater(res.object_id, 0)
+        self.assertEqual(res.version, 1)
+        vo_id = res.object_id
+
+        # rviz's Publish Point tool: an ANCHOR owned by "rviz" at the same place.
+        clicked = rospy.Publisher("/clicked_point", PointStamped, queue_size=1, latch=True)
+        self.assertTrue(wait_subscribed(clicked))
+        point = PointStamped()
+        point.header.frame_id = "map"
+        point.point = obj.position
+        clicked.publish(point)
+
+        # Bad interactions: rejected with a reason.
+        nan = floor_line(graph, floor, self.dataset.camera, 319.5, 400.0)
+        nan.start.x = float("nan")
+        far = floor_line(graph, floor, self.dataset.camera, 319.5, 400.0)
+        far.start.x += 1e5
+        far.end.x += 1e5
+        far.position.x += 1e5
+        for request_id, type_, o, oid, base, word in [
+                (2, Interaction.REGISTER, nan, 0, 0, "finite"),
+                (3, Interaction.MANIPULATE, obj, 9999, 1, "9999"),
+                (4, Interaction.REGISTER, far, 0, 0, "map")]:
+            r = device.interact(request_id, type_, o, object_id=oid, base_version=base)
+            self.assertIsNotNone(r, "no InteractionResult for request %d" % request_id)
+            self.assertFalse(r.accepted, "request %d accepted" % request_id)
+            self.assertTrue(r.reason, "request %d rejected without a reason" % request_id)
+            print("[vo] request %d rejected: %s" % (request_id, r.reason))
+        time.sleep(0.5)
+        self.assertTrue(self.warned("device_0", "rejected"), "no warning naming the device")
+
+        # The next local graphs carry the object at version 1.
+        self.upload_all(device, second, False)
+        carried = [i for i in second if device.graphs[i][0].status in TRACKED
+                   and any(o.id == vo_id and o.version == 1 and not o.deleted
+                           for o in device.graphs[i][0].objects)]
+        print("[vo] graphs after the registration: %d, carrying the object: %d"
+              % (len(second), len(carried)))
+        self.assertTrue(carried, "no local graph carried the registered object")
+        self.assertEqual(carried[0], second[0], "the first graph after registration lacks it")
+        got = next(o for o in device.graphs[carried[0]][0].objects if o.id == vo_id)
+        self.assertLess(math.dist((got.start.x, got.start.y, got.start.z),
+                                  (obj.start.x, obj.start.y, obj.start.z)), 1e-6)
+        self.assertEqual(got.owner, "device_0")
+        self.assertTrue(any(o.owner == "rviz" and o.kind == VirtualObject.ANCHOR
+                            for o in device.graphs[carried[0]][0].objects),
+                        "the rviz clicked point is not in the local graph")
+
+        # kill -9 and restart on the same database.
+        server.kill9()
+        self.assertTrue(wait_service_gone("/ecar/connect"), "the killed server's service stays")
+        # Closed before the restart: the store refuses a database another process has open.
+        db = sqlite3.connect(database)
+        try:
+            rows = db.execute("SELECT version, deleted FROM objects WHERE id = ?",
+                              (vo_id,)).fetchall()
+        finally:
+            db.close()
+        self.assertEqual(rows, [(1, 0)], "the acknowledged object is not in the database")
+        restarted = Server(database)
+        try:
+            device.graphs.clear()
+            self.assertTrue(device.connect().accepted)
+            self.assertTrue(wait_subscribed(device.pub))
+            self.upload_all(device, good, True)
+            carried = [i for i in good if device.graphs[i][0].status in TRACKED
+                       and any(o.id == vo_id and o.version == 1 for o in device.graphs[i][0].objects)]
+            print("[vo] after kill -9 and restart: %d of %d graphs carry the object"
+                  % (len(carried), len(good)))
+            self.assertTrue(carried, "the restarted server never sent the acknowledged object "
+                            "(warnings: %s)" % sorted(set(self.warnings)))
+            for text in [t for t in self.infos if "per upload" in t or "planes:" in t]:
+                print("[vo] server: %s" % text)
+            # The store continues after the id: a new registration gets a new id.
+            res = device.interact(5, Interaction.REGISTER, obj)
+            self.assertTrue(res is not None and res.accepted)
+            self.assertGreater(res.object_id, vo_id)
+        finally:
+            restarted.stop()
 
 
 if __name__ == "__main__":

@@ -5,8 +5,11 @@
 
 #include <string>
 
+#include "ecar_core/grid.h"
 #include "ecar_core/local_graph.h"
+#include "ecar_core/planes.h"
 #include "ecar_core/slam.h"
+#include "ecar_core/vo_store.h"
 
 namespace ecar_server {
 
@@ -46,12 +49,33 @@ struct ServerConfig {
   /// (fx, fy, cx, cy) and its distortion coefficients by this much.
   double camera_tolerance = 0.005;
 
+  /// Plane segmentation and merging (yaml section planes.*).
+  ecar::PlaneConfig planes;
+  /// Grid connection (yaml section grid.*).
+  ecar::GridConfig grid;
+  /// Virtual objects (yaml section vo.*): database_path, attach_mode (vo.attach), bounds.
+  /// cell_size is taken from grid.cell_size. The in-class default path is
+  /// ":memory:" (tests); config/server.yaml sets a file.
+  ecar::VoStoreConfig vo = defaultVoConfig();
+  /// m: the VO map bounds are the keyframe centres' bounding box grown by this.
+  double vo_map_margin = 10.0;
+  /// Besides the planes hit from the aligned pose, a local graph carries the
+  /// planes linked to the frame's local keyframes.
+  bool graph_keyframe_planes = true;
+
   /// Throws ecar::Error naming the first invalid key.
   void validate() const;
   ecar::SyncMode syncMode() const { return ecar::parseSyncMode(sync_mode); }
   /// SLAM options (mapping on its own thread).
   ecar::SlamConfig slamConfig() const;
   ecar::LocalGraphConfig localGraphConfig() const;
+
+ private:
+  static ecar::VoStoreConfig defaultVoConfig() {
+    ecar::VoStoreConfig c;
+    c.database_path = ":memory:";
+    return c;
+  }
 };
 
 }  // namespace ecar_server

@@ -8,14 +8,18 @@
 #include <optional>
 #include <string>
 
+#include <ecar_msgs/Interaction.h>
+#include <ecar_msgs/InteractionResult.h>
 #include <ecar_msgs/KeyFrameEvent.h>
 #include <ecar_msgs/KeyFrameInfo.h>
 #include <ecar_msgs/LocalGraph.h>
 #include <ecar_msgs/MapPointFull.h>
+#include <ecar_msgs/Plane.h>
 #include <ecar_msgs/PointPosition.h>
 #include <ecar_msgs/TrackedFrame.h>
 #include <ecar_msgs/TrackedPoint.h>
 #include <ecar_msgs/Upload.h>
+#include <ecar_msgs/VirtualObject.h>
 #include <ros/time.h>
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
@@ -23,7 +27,9 @@
 #include "ecar_core/error.h"
 #include "ecar_core/geometry.h"
 #include "ecar_core/local_graph.h"
+#include "ecar_core/planes.h"
 #include "ecar_core/slam.h"
+#include "ecar_core/vo_store.h"
 
 namespace ecar_server {
 
@@ -101,6 +107,37 @@ void setMotion(const UploadMotion& motion, ecar_msgs::Upload* upload);
 /// The uploaded JPEG decoded to grey; throws ecar::Error ("image") when it
 /// does not decode.
 cv::Mat decodeImage(const ecar_msgs::Upload& upload);
+
+/// Plane: field for field (ids, label, normal, offset, boundary, version, count).
+ecar_msgs::Plane toMsg(const ecar::Plane& plane);
+/// Throws ecar::Error ("plane.label") on an unknown label.
+ecar::Plane fromMsg(const ecar_msgs::Plane& msg);
+
+/// VirtualObject: field for field.
+ecar_msgs::VirtualObject toMsg(const ecar::VirtualObject& vo);
+/// Throws ecar::Error ("object.kind") on an unknown kind. Coordinates are not
+/// checked here (the VoStore rejects NaN with a reason).
+ecar::VirtualObject fromMsg(const ecar_msgs::VirtualObject& msg);
+
+/// A device's Interaction, as the server applies it to its VoStore.
+struct VoRequest {
+  enum class Type { kRegister, kManipulate, kDelete };
+  std::string device;
+  uint32_t request_id = 0;
+  Type type = Type::kRegister;
+  ecar::ObjectId object;  ///< MANIPULATE / DELETE target
+  ecar::VirtualObject state;
+  uint32_t base_version = 0;
+};
+ecar_msgs::Interaction toMsg(const VoRequest& request);
+/// Throws ecar::Error ("type", "object.kind") when the message cannot be used.
+VoRequest fromMsg(const ecar_msgs::Interaction& msg);
+
+/// The answer to a request: InteractionResult with the outcome's id, version, reason.
+ecar_msgs::InteractionResult toMsg(const VoRequest& request, const ecar::VoOutcome& outcome);
+/// The outcome carried by an InteractionResult (code kNone when accepted, else
+/// left kNone too: the wire carries only the reason).
+ecar::VoOutcome outcomeFromMsg(const ecar_msgs::InteractionResult& msg);
 
 // ---- template implementation
 

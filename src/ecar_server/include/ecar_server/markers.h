@@ -11,7 +11,9 @@
 
 #include "ecar_core/geometry.h"
 #include "ecar_core/map.h"
+#include "ecar_core/planes.h"
 #include "ecar_core/types.h"
+#include "ecar_core/vo_store.h"
 
 namespace ecar_server {
 
@@ -31,5 +33,26 @@ std_msgs::ColorRGBA deviceColour(ecar::DeviceId id);
 visualization_msgs::MarkerArray mapMarkers(const ecar::Map& map,
                                            const std::vector<CameraMarker>& cameras,
                                            const std::string& frame, const ros::Time& stamp);
+
+/// Translucent colour of a plane label: floor green, wall blue, ceiling yellow, other grey.
+std_msgs::ColorRGBA labelColour(ecar::PlaneLabel label);
+
+/// Cells one device sees.
+struct DeviceCells {
+  ecar::DeviceId device;
+  std::vector<ecar::CellKey> cells;
+};
+
+/// Markers of the structure in frame `frame`: ns "planes" (one TRIANGLE_LIST,
+/// each plane's boundary as a fan, translucent, coloured by label), ns
+/// "objects" (one marker per live object, id = object id: LINE_LIST of its
+/// segment with its width and colour; an ANCHOR is a SPHERE), ns "cells" (one
+/// CUBE_LIST per device, id = device id, in the device's colour). Deleted
+/// objects are skipped: publish a DELETEALL before these to drop old ones.
+visualization_msgs::MarkerArray structureMarkers(const std::vector<ecar::Plane>& planes,
+                                                 const std::vector<ecar::VirtualObject>& objects,
+                                                 const std::vector<DeviceCells>& cells,
+                                                 double cell_size, const std::string& frame,
+                                                 const ros::Time& stamp);
 
 }  // namespace ecar_server

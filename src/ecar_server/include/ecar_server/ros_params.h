@@ -18,6 +18,7 @@ struct DeviceTopicNames {
   std::string upload() const { return "/" + device + "/upload"; }
   std::string localGraph() const { return "/" + device + "/local_graph"; }
   std::string interaction() const { return "/" + device + "/interaction"; }
+  std::string interactionResult() const { return "/" + device + "/interaction_result"; }
   std::string cameraServerFrame() const { return device + "/camera_server"; }
 };
 

@@ -24,6 +24,7 @@
 #include "ecar_core/slam.h"
 #include "ecar_core/types.h"
 #include "ecar_server/config.h"
+#include "ecar_server/structure.h"
 
 namespace ecar_server {
 
@@ -92,6 +93,9 @@ class ServerContext {
   /// Differs on every server start and every map reset.
   uint32_t mapEpoch() const;
 
+  /// Planes, grid links and virtual objects (thread-safe on its own).
+  Structure& structure() { return *structure_; }
+
   /// Runs `f` on the device's mirror under its lock; false when the device
   /// is not registered.
   bool withMirror(const std::string& name, const std::function<void(ecar::DeviceMirror&)>& f);
@@ -116,6 +120,7 @@ class ServerContext {
 
   const ServerConfig config_;
   const uint32_t start_epoch_;
+  const std::unique_ptr<Structure> structure_;
 
   mutable std::mutex mutex_;  // guards everything below but listeners_
   std::shared_ptr<ecar::SlamSystem> slam_;
