@@ -5,6 +5,7 @@
 // it (Structure::visible), plus, once, the tombstone of every object the
 // device was sent and that was deleted since.
 #include <algorithm>
+#include <cmath>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -44,6 +45,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
     std::lock_guard<std::mutex> lock(mutex_);
     publishers_.erase(device.name);
     sent_objects_.erase(device.name);
+    sent_planes_.erase(device.name);
   }
 
  private:
@@ -130,8 +132,22 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
       NODELET_WARN_THROTTLE(5.0, "device %s: no objects in local graph %u: %s", device.c_str(),
                             graph->frame_index, v.error.c_str());
     }
-    graph->planes.reserve(v.planes.size());
-    for (const auto& p : v.planes) graph->planes.push_back(toMsg(p));
+    {
+      // Planes the device holds at this version are refreshed only now and then.
+      std::lock_guard<std::mutex> lock(mutex_);
+      SentPlanes& sent = sent_planes_[device];
+      ++sent.graphs;
+      for (const auto& p : v.planes) {
+        const SentPlanes::Sent now = SentPlanes::of(p, sent.graphs);
+        auto it = sent.planes.find(p.id);
+        if (it != sent.planes.end() && !it->second.differs(now) &&
+            sent.graphs - it->second.graph < static_cast<uint64_t>(config_.graph_plane_refresh)) {
+          continue;
+        }
+        sent.planes[p.id] = now;
+        graph->planes.push_back(toMsg(p));
+      }
+    }
     graph->objects.reserve(v.objects.size());
     std::vector<ecar::ObjectId> gone;
     {
@@ -179,6 +195,43 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
   std::map<std::string, ros::Publisher> publishers_;
   /// Per device: objects sent to it (id -> version), to send their tombstones.
   std::map<std::string, std::map<ecar::ObjectId, uint32_t>> sent_objects_;
+  /// Per device: each plane as it was sent and the graph count at sending. A
+  /// plane is re-estimated at nearly every keyframe (its version moves on), so
+  /// it is sent again only when it changed visibly: its normal by more than
+  /// 1 degree, its offset by more than 2 cm, or its extent by more than 0.25 m.
+  struct SentPlanes {
+    struct Sent {
+      uint64_t graph = 0;
+      Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+      double offset = 0.0;
+      Eigen::Vector3d min = Eigen::Vector3d::Zero(), max = Eigen::Vector3d::Zero();
+      uint8_t label = 0;
+
+      bool differs(const Sent& o) const {
+        return label != o.label || normal.dot(o.normal) < std::cos(M_PI / 180.0) ||
+               std::abs(offset - o.offset) > 0.02 || (min - o.min).cwiseAbs().maxCoeff() > 0.25 ||
+               (max - o.max).cwiseAbs().maxCoeff() > 0.25;
+      }
+    };
+    static Sent of(const ecar::Plane& p, uint64_t graph) {
+      Sent s;
+      s.graph = graph;
+      s.normal = p.normal;
+      s.offset = p.offset;
+      s.label = static_cast<uint8_t>(p.label);
+      if (!p.boundary.empty()) {
+        s.min = s.max = p.boundary.front();
+        for (const auto& b : p.boundary) {
+          s.min = s.min.cwiseMin(b);
+          s.max = s.max.cwiseMax(b);
+        }
+      }
+      return s;
+    }
+    uint64_t graphs = 0;
+    std::map<ecar::PlaneId, Sent> planes;
+  };
+  std::map<std::string, SentPlanes> sent_planes_;
   // Timing of Structure::visible (the tracked-frame callback runs one at a time).
   size_t stats_count_ = 0;
   double stats_sum_ms_ = 0.0, stats_max_ms_ = 0.0;

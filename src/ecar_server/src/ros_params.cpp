@@ -96,6 +96,7 @@ ServerConfig loadServerConfig(const ros::NodeHandle& nh) {
   read(nh, "planes/merge_gap", &p.merge_gap);
   read(nh, "planes/keep_factor", &p.keep_factor);
   read(nh, "planes/graph_keyframe_planes", &c.graph_keyframe_planes);
+  read(nh, "planes/graph_plane_refresh", &c.graph_plane_refresh);
 
   ecar::GridConfig& g = c.grid;
   read(nh, "grid/window", &g.window);

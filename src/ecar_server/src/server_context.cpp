@@ -53,6 +53,7 @@ void ServerConfig::validate() const {
   if (orb_features < 100 || orb_features > 100000) fail("orb_features", "must be in [100, 100000]");
   if (local_keyframes < 2) fail("local_keyframes", "must be >= 2");
   if (!(camera_tolerance >= 0.0)) fail("camera_tolerance", "must be >= 0");
+  if (graph_plane_refresh < 1) throw ecar::Error("planes/graph_plane_refresh must be >= 1");
   planes.validate();
   grid.validate();
   try {

@@ -111,7 +111,7 @@ class ServerRestartTest(unittest.TestCase):
         rospy.Subscriber("/%s/local_graph" % DEVICE, LocalGraph, self.on_graph, queue_size=100)
         rospy.Subscriber("/%s/device_frame" % DEVICE, DeviceFrame, self.on_frame, queue_size=100)
 
-        server = self.start([self.server_launch, "output:=log"])
+        server = self.start([self.server_launch, "output:=log", "database:=:memory:"])
         self.start([self.player_launch, "dataset:=" + data, "device:=" + DEVICE, "loop:=true",
                     "pace_by_consumer:=true", "ack_timeout:=1.0", "output:=log"])
         self.assertTrue(self.wait_for(lambda: sum(self.aligned.values()) >= 5, 120.0),
@@ -129,7 +129,7 @@ class ServerRestartTest(unittest.TestCase):
         with self.lock:
             self.mark = time.time()
             self.tracked_after = 0
-        self.start([self.server_launch, "output:=log"])
+        self.start([self.server_launch, "output:=log", "database:=:memory:"])
 
         new_epoch = lambda: any(e not in first_epochs and n >= 5 for e, n in self.aligned.items())
         self.assertTrue(self.wait_for(new_epoch, 120.0),

@@ -62,6 +62,10 @@ struct ServerConfig {
   /// Besides the planes hit from the aligned pose, a local graph carries the
   /// planes linked to the frame's local keyframes.
   bool graph_keyframe_planes = true;
+  /// A plane the device was sent at its current version is sent again only
+  /// after this many of its local graphs (a refresh in case a graph was lost);
+  /// a new or re-estimated plane goes out at once. 1 = in every graph.
+  int graph_plane_refresh = 10;
 
   /// Throws ecar::Error naming the first invalid key.
   void validate() const;
