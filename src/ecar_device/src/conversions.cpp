@@ -250,14 +250,6 @@ ecar_msgs::RoundTripMetrics toRoundTripMetrics(const ecar_msgs::LocalGraph& grap
 
 namespace {
 
-geometry_msgs::Point toPoint(const Eigen::Vector3d& p) {
-  geometry_msgs::Point m;
-  m.x = p.x();
-  m.y = p.y();
-  m.z = p.z();
-  return m;
-}
-
 Eigen::Vector3d finitePoint(const geometry_msgs::Point& m, const std::string& field) {
   const Eigen::Vector3d p(m.x, m.y, m.z);
   if (!p.allFinite()) throw ecar::Error(field + ": non-finite value");
@@ -273,22 +265,7 @@ Eigen::Vector3d finiteVector3(const geometry_msgs::Vector3& m, const std::string
 }  // namespace
 
 ecar_msgs::VirtualObject toVirtualObject(const ecar::VirtualObject& vo) {
-  ecar_msgs::VirtualObject m;
-  m.id = vo.id.value;
-  m.kind = static_cast<uint8_t>(vo.kind);
-  m.position = toPoint(vo.position);
-  m.start = toPoint(vo.start);
-  m.end = toPoint(vo.end);
-  m.r = vo.r;
-  m.g = vo.g;
-  m.b = vo.b;
-  m.width = vo.width;
-  m.normal = ecar_sim::toVector3(vo.normal);
-  m.plane_id = vo.plane.value;
-  m.owner = vo.owner;
-  m.version = vo.version;
-  m.deleted = vo.deleted;
-  return m;
+  return ecar_sim::toVirtualObjectMsg(vo);
 }
 
 ecar::VirtualObject fromVirtualObject(const ecar_msgs::VirtualObject& m, const std::string& field) {
@@ -317,18 +294,7 @@ ecar::VirtualObject fromVirtualObject(const ecar_msgs::VirtualObject& m, const s
   return vo;
 }
 
-ecar_msgs::Plane toPlane(const ecar::Plane& plane) {
-  ecar_msgs::Plane m;
-  m.id = plane.id.value;
-  m.label = static_cast<uint8_t>(plane.label);
-  m.normal = ecar_sim::toVector3(plane.normal);
-  m.offset = plane.offset;
-  m.boundary.reserve(plane.boundary.size());
-  for (const auto& p : plane.boundary) m.boundary.push_back(toPoint(p));
-  m.version = plane.version;
-  m.num_points = plane.num_points;
-  return m;
-}
+ecar_msgs::Plane toPlane(const ecar::Plane& plane) { return ecar_sim::toPlaneMsg(plane); }
 
 ecar::Plane fromPlane(const ecar_msgs::Plane& m, const std::string& field) {
   ecar::Plane plane;

@@ -264,42 +264,7 @@ cv::Mat decodeImage(const ecar_msgs::Upload& upload) {
   return image;
 }
 
-namespace {
-
-geometry_msgs::Point toPointMsg(const Eigen::Vector3d& p) {
-  geometry_msgs::Point m;
-  m.x = p.x();
-  m.y = p.y();
-  m.z = p.z();
-  return m;
-}
-
-Eigen::Vector3d fromPointMsg(const geometry_msgs::Point& m) { return {m.x, m.y, m.z}; }
-
-geometry_msgs::Vector3 toVectorMsg(const Eigen::Vector3d& v) {
-  geometry_msgs::Vector3 m;
-  m.x = v.x();
-  m.y = v.y();
-  m.z = v.z();
-  return m;
-}
-
-Eigen::Vector3d fromVectorMsg(const geometry_msgs::Vector3& m) { return {m.x, m.y, m.z}; }
-
-}  // namespace
-
-ecar_msgs::Plane toMsg(const ecar::Plane& plane) {
-  ecar_msgs::Plane m;
-  m.id = plane.id.value;
-  m.label = static_cast<uint8_t>(plane.label);
-  m.normal = toVectorMsg(plane.normal);
-  m.offset = plane.offset;
-  m.boundary.reserve(plane.boundary.size());
-  for (const auto& p : plane.boundary) m.boundary.push_back(toPointMsg(p));
-  m.version = plane.version;
-  m.num_points = plane.num_points;
-  return m;
-}
+ecar_msgs::Plane toMsg(const ecar::Plane& plane) { return ecar_sim::toPlaneMsg(plane); }
 
 ecar::Plane fromMsg(const ecar_msgs::Plane& msg) {
   if (msg.label > ecar_msgs::Plane::OTHER) {
@@ -308,32 +273,17 @@ ecar::Plane fromMsg(const ecar_msgs::Plane& msg) {
   ecar::Plane p;
   p.id = ecar::PlaneId(msg.id);
   p.label = static_cast<ecar::PlaneLabel>(msg.label);
-  p.normal = fromVectorMsg(msg.normal);
+  p.normal = ecar_sim::fromVector3(msg.normal);
   p.offset = msg.offset;
   p.boundary.reserve(msg.boundary.size());
-  for (const auto& b : msg.boundary) p.boundary.push_back(fromPointMsg(b));
+  for (const auto& b : msg.boundary) p.boundary.push_back(ecar_sim::fromPoint(b));
   p.version = msg.version;
   p.num_points = msg.num_points;
   return p;
 }
 
 ecar_msgs::VirtualObject toMsg(const ecar::VirtualObject& vo) {
-  ecar_msgs::VirtualObject m;
-  m.id = vo.id.value;
-  m.kind = static_cast<uint8_t>(vo.kind);
-  m.position = toPointMsg(vo.position);
-  m.start = toPointMsg(vo.start);
-  m.end = toPointMsg(vo.end);
-  m.r = vo.r;
-  m.g = vo.g;
-  m.b = vo.b;
-  m.width = vo.width;
-  m.normal = toVectorMsg(vo.normal);
-  m.plane_id = vo.plane.value;
-  m.owner = vo.owner;
-  m.version = vo.version;
-  m.deleted = vo.deleted;
-  return m;
+  return ecar_sim::toVirtualObjectMsg(vo);
 }
 
 ecar::VirtualObject fromMsg(const ecar_msgs::VirtualObject& msg) {
@@ -343,14 +293,14 @@ ecar::VirtualObject fromMsg(const ecar_msgs::VirtualObject& msg) {
   ecar::VirtualObject vo;
   vo.id = ecar::ObjectId(msg.id);
   vo.kind = static_cast<ecar::VoKind>(msg.kind);
-  vo.position = fromPointMsg(msg.position);
-  vo.start = fromPointMsg(msg.start);
-  vo.end = fromPointMsg(msg.end);
+  vo.position = ecar_sim::fromPoint(msg.position);
+  vo.start = ecar_sim::fromPoint(msg.start);
+  vo.end = ecar_sim::fromPoint(msg.end);
   vo.r = msg.r;
   vo.g = msg.g;
   vo.b = msg.b;
   vo.width = msg.width;
-  vo.normal = fromVectorMsg(msg.normal);
+  vo.normal = ecar_sim::fromVector3(msg.normal);
   vo.plane = ecar::PlaneId(msg.plane_id);
   vo.owner = msg.owner;
   vo.version = msg.version;

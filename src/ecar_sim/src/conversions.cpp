@@ -162,4 +162,46 @@ geometry_msgs::Vector3 toVector3(const Eigen::Vector3d& v) {
 
 Eigen::Vector3d fromVector3(const geometry_msgs::Vector3& v) { return {v.x, v.y, v.z}; }
 
+geometry_msgs::Point toPoint(const Eigen::Vector3d& p) {
+  geometry_msgs::Point m;
+  m.x = p.x();
+  m.y = p.y();
+  m.z = p.z();
+  return m;
+}
+
+Eigen::Vector3d fromPoint(const geometry_msgs::Point& p) { return {p.x, p.y, p.z}; }
+
+ecar_msgs::Plane toPlaneMsg(const ecar::Plane& plane) {
+  ecar_msgs::Plane m;
+  m.id = plane.id.value;
+  m.label = static_cast<uint8_t>(plane.label);
+  m.normal = toVector3(plane.normal);
+  m.offset = plane.offset;
+  m.boundary.reserve(plane.boundary.size());
+  for (const auto& p : plane.boundary) m.boundary.push_back(toPoint(p));
+  m.version = plane.version;
+  m.num_points = plane.num_points;
+  return m;
+}
+
+ecar_msgs::VirtualObject toVirtualObjectMsg(const ecar::VirtualObject& vo) {
+  ecar_msgs::VirtualObject m;
+  m.id = vo.id.value;
+  m.kind = static_cast<uint8_t>(vo.kind);
+  m.position = toPoint(vo.position);
+  m.start = toPoint(vo.start);
+  m.end = toPoint(vo.end);
+  m.r = vo.r;
+  m.g = vo.g;
+  m.b = vo.b;
+  m.width = vo.width;
+  m.normal = toVector3(vo.normal);
+  m.plane_id = vo.plane.value;
+  m.owner = vo.owner;
+  m.version = vo.version;
+  m.deleted = vo.deleted;
+  return m;
+}
+
 }  // namespace ecar_sim

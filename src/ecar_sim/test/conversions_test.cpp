@@ -250,6 +250,58 @@ TEST(Vector3Test, RoundTrip) {
   EXPECT_EQ(fromVector3(m), v);
 }
 
+TEST(StructureTest, PlaneAndVirtualObjectFieldMapping) {
+  ecar::Plane plane;
+  plane.id = ecar::PlaneId(4);
+  plane.label = ecar::PlaneLabel::kWall;
+  plane.normal = Eigen::Vector3d(0.0, 1.0, 0.0);
+  plane.offset = -2.4;
+  plane.boundary = {Eigen::Vector3d(0, 2.4, 0), Eigen::Vector3d(3, 2.4, 0),
+                    Eigen::Vector3d(3, 2.4, 2.7)};
+  plane.version = 7;
+  plane.num_points = 321;
+  const ecar_msgs::Plane pm = toPlaneMsg(plane);
+  EXPECT_EQ(pm.id, 4u);
+  EXPECT_EQ(pm.label, ecar_msgs::Plane::WALL);
+  EXPECT_DOUBLE_EQ(pm.normal.y, 1.0);
+  EXPECT_DOUBLE_EQ(pm.offset, -2.4);
+  ASSERT_EQ(pm.boundary.size(), 3u);
+  EXPECT_EQ(fromPoint(pm.boundary[2]), plane.boundary[2]);
+  EXPECT_EQ(pm.version, 7u);
+  EXPECT_EQ(pm.num_points, 321u);
+
+  ecar::VirtualObject vo;
+  vo.id = ecar::ObjectId(9);
+  vo.kind = ecar::VoKind::kLine;
+  vo.start = Eigen::Vector3d(1, 2, 0);
+  vo.end = Eigen::Vector3d(2, 2, 0);
+  vo.position = Eigen::Vector3d(1.5, 2, 0);
+  vo.r = 10;
+  vo.g = 20;
+  vo.b = 30;
+  vo.width = 0.02f;
+  vo.normal = Eigen::Vector3d::UnitZ();
+  vo.plane = ecar::PlaneId(4);
+  vo.owner = "device_0";
+  vo.version = 3;
+  vo.deleted = true;
+  const ecar_msgs::VirtualObject vm = toVirtualObjectMsg(vo);
+  EXPECT_EQ(vm.id, 9u);
+  EXPECT_EQ(vm.kind, ecar_msgs::VirtualObject::LINE);
+  EXPECT_EQ(fromPoint(vm.start), vo.start);
+  EXPECT_EQ(fromPoint(vm.end), vo.end);
+  EXPECT_EQ(fromPoint(vm.position), vo.position);
+  EXPECT_EQ(vm.r, 10);
+  EXPECT_EQ(vm.g, 20);
+  EXPECT_EQ(vm.b, 30);
+  EXPECT_FLOAT_EQ(vm.width, 0.02f);
+  EXPECT_EQ(fromVector3(vm.normal), vo.normal);
+  EXPECT_EQ(vm.plane_id, 4u);
+  EXPECT_EQ(vm.owner, "device_0");
+  EXPECT_EQ(vm.version, 3u);
+  EXPECT_TRUE(vm.deleted);
+}
+
 }  // namespace
 }  // namespace ecar_sim
 

@@ -8,6 +8,9 @@
 
 #include <string>
 
+#include <ecar_msgs/Plane.h>
+#include <ecar_msgs/VirtualObject.h>
+#include <geometry_msgs/Point.h>
 #include <geometry_msgs/Pose.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <geometry_msgs/Vector3.h>
@@ -21,6 +24,8 @@
 #include "ecar_core/camera.h"
 #include "ecar_core/dataset.h"
 #include "ecar_core/geometry.h"
+#include "ecar_core/planes.h"
+#include "ecar_core/vo_store.h"
 
 namespace ecar_sim {
 
@@ -84,5 +89,13 @@ sensor_msgs::ImagePtr toImageMsg(const cv::Mat& image, const std_msgs::Header& h
 
 geometry_msgs::Vector3 toVector3(const Eigen::Vector3d& v);
 Eigen::Vector3d fromVector3(const geometry_msgs::Vector3& v);
+geometry_msgs::Point toPoint(const Eigen::Vector3d& p);
+Eigen::Vector3d fromPoint(const geometry_msgs::Point& p);
+
+/// A structure plane, field for field (the server sends it, the device and
+/// tests read it back; each reads with its own checks).
+ecar_msgs::Plane toPlaneMsg(const ecar::Plane& plane);
+/// A virtual object, field for field.
+ecar_msgs::VirtualObject toVirtualObjectMsg(const ecar::VirtualObject& vo);
 
 }  // namespace ecar_sim
