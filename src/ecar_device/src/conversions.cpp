@@ -206,7 +206,8 @@ UploadContent fromUpload(const ecar_msgs::Upload& msg) {
 ecar_msgs::DeviceFrame toDeviceFrame(const std::string& device_id, const ros::Time& stamp,
                                      const std::string& map_frame,
                                      const ecar::DeviceTrackResult& result, uint32_t keyframes,
-                                     uint32_t local_points, bool uploaded) {
+                                     uint32_t local_points, bool uploaded,
+                                     const std::map<ecar::ObjectId, ecar::VirtualObject>& objects) {
   ecar_msgs::DeviceFrame msg;
   msg.header.stamp = stamp;
   msg.header.frame_id = map_frame;
@@ -223,6 +224,12 @@ ecar_msgs::DeviceFrame toDeviceFrame(const std::string& device_id, const ros::Ti
   msg.keyframes = keyframes;
   msg.uploaded = uploaded;
   msg.tracking_time = static_cast<float>(result.total_ms / 1000.0);
+  msg.object_ids.reserve(objects.size());
+  msg.object_versions.reserve(objects.size());
+  for (const auto& [id, vo] : objects) {
+    msg.object_ids.push_back(id.value);
+    msg.object_versions.push_back(vo.version);
+  }
   return msg;
 }
 

@@ -258,7 +258,8 @@ void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
                            const ecar::DeviceTrackResult& r, bool uploaded) {
   device_frame_pub_.publish(toDeviceFrame(config_.device_id, image.header.stamp, config_.map_frame,
                                           r, static_cast<uint32_t>(tracker_->numKeyFrames()),
-                                          static_cast<uint32_t>(tracker_->numPoints()), uploaded));
+                                          static_cast<uint32_t>(tracker_->numPoints()), uploaded,
+                                          objects_.objects()));
   std_msgs::Header header;
   header.stamp = image.header.stamp;
   header.frame_id = config_.map_frame;

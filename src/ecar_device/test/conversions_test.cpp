@@ -180,7 +180,10 @@ TEST(DeviceFrameTest, Fields) {
   r.T_w_c = somePose();
   r.inliers = 150;
   r.total_ms = 12.5;
-  const auto msg = toDeviceFrame("device_0", ros::Time(5, 0), "map", r, 10, 800, true);
+  std::map<ecar::ObjectId, ecar::VirtualObject> held;
+  held[ecar::ObjectId(4)].version = 2;
+  held[ecar::ObjectId(7)].version = 5;
+  const auto msg = toDeviceFrame("device_0", ros::Time(5, 0), "map", r, 10, 800, true, held);
   EXPECT_EQ(msg.header.frame_id, "map");
   EXPECT_EQ(msg.header.stamp, ros::Time(5, 0));
   EXPECT_EQ(msg.device_id, "device_0");
@@ -192,9 +195,12 @@ TEST(DeviceFrameTest, Fields) {
   EXPECT_EQ(msg.local_points, 800u);
   EXPECT_TRUE(msg.uploaded);
   EXPECT_FLOAT_EQ(msg.tracking_time, 0.0125f);
+  EXPECT_EQ(msg.object_ids, (std::vector<uint32_t>{4, 7}));
+  EXPECT_EQ(msg.object_versions, (std::vector<uint32_t>{2, 5}));
   r.state = ecar::TrackingState::kLost;
-  EXPECT_EQ(toDeviceFrame("d", ros::Time(), "map", r, 0, 0, false).status,
-            ecar_msgs::DeviceFrame::LOST);
+  const auto lost = toDeviceFrame("d", ros::Time(), "map", r, 0, 0, false, {});
+  EXPECT_EQ(lost.status, ecar_msgs::DeviceFrame::LOST);
+  EXPECT_TRUE(lost.object_ids.empty());
 }
 
 TEST(RoundTripMetricsTest, LatencyPartsAndBytes) {

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -80,11 +81,13 @@ ecar_msgs::Upload toUpload(const UploadContent& content);
 /// gravity or odometry that is flagged present.
 UploadContent fromUpload(const ecar_msgs::Upload& msg);
 
-/// One DeviceFrame for a tracked camera frame (stamp = capture time, frame "map").
+/// One DeviceFrame for a tracked camera frame (stamp = capture time, frame "map"),
+/// listing the VOs held (`objects`, live ones) with their versions.
 ecar_msgs::DeviceFrame toDeviceFrame(const std::string& device_id, const ros::Time& stamp,
                                      const std::string& map_frame,
                                      const ecar::DeviceTrackResult& result, uint32_t keyframes,
-                                     uint32_t local_points, bool uploaded);
+                                     uint32_t local_points, bool uploaded,
+                                     const std::map<ecar::ObjectId, ecar::VirtualObject>& objects);
 
 /// What the device measured of one round trip.
 struct RoundTrip {

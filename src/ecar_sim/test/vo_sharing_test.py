@@ -1,0 +1,203 @@
+#!/usr/bin/python3
+# (The system interpreter, not `env python3`: a python3 from pyenv or a venv
+# first on PATH has no rospy.)
+"""End to end (started by test/vo_sharing.test): one device draws, another far away receives.
+
+Renders the first frames of corridor device_0 (which draws a line on the floor at x = 7.5 and one
+on the left wall at x = 8.5 by its scripted touches) and of device_1 (which starts 22 m away at
+the far end, looking back), plays both through the real server and devices, and asserts that
+- device_0's touches became accepted REGISTERs (no rejections);
+- the VOs lie where the user touched, on the floor and on the wall, in the world (map -> world
+  by the similarity fit of the server's poses to the ground truth), within 10 cm;
+- device_1 held every VO that its ground-truth view showed (at the version accepted two round
+  trips before), first from more than 15 m away, and the VO metrics of run_session agree.
+
+Private params: ~scene, ~player_launch, ~frames.
+"""
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import unittest
+
+import numpy as np
+import rospy
+import rostest
+import yaml
+from ecar_msgs.msg import DeviceFrame, InteractionResult, LocalGraph, VirtualObject
+from ecar_sim import vo_metrics as vm
+from std_msgs.msg import Bool
+
+PKG = "ecar_sim"
+DEVICES = ["device_0", "device_1"]
+
+
+def read_groundtruth(folder):
+    poses = {}
+    with open(os.path.join(folder, "groundtruth.txt")) as f:
+        rows = [line.split() for line in f if line.strip() and not line.startswith("#")]
+    for i, r in enumerate(rows):
+        T = np.eye(4)
+        T[:3, :3] = vm.quat_to_rot([float(x) for x in r[4:8]])
+        T[:3, 3] = [float(x) for x in r[1:4]]
+        poses[i] = T
+    return poses
+
+
+class VoSharingTest(unittest.TestCase):
+    def setUp(self):
+        self.scene = rospy.get_param("~scene")
+        self.player_launch = rospy.get_param("~player_launch")
+        self.frames = int(rospy.get_param("~frames", 150))
+        self.tmp = tempfile.mkdtemp(prefix="ecar_vo_sharing_")
+        self.lock = threading.Lock()
+        self.device_frames = {d: {} for d in DEVICES}
+        self.server = {d: {} for d in DEVICES}
+        self.graph_walls = {d: [] for d in DEVICES}
+        self.objects = []
+        self.results = []
+        self.finished = {d: False for d in DEVICES}
+        self.last_activity = time.time()
+        self.players = []
+
+    def tearDown(self):
+        for p in self.players:
+            if p.poll() is None:
+                p.terminate()
+                p.wait()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def on_frame(self, m):
+        now = time.time()
+        with self.lock:
+            p, q = m.pose.position, m.pose.orientation
+            self.device_frames[m.device_id][m.frame_index] = (
+                now, m.status, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w),
+                dict(zip(m.object_ids, m.object_versions)))
+            self.last_activity = now
+
+    def on_graph(self, m, device):
+        with self.lock:
+            self.graph_walls[device].append(time.time())
+            if m.status in (LocalGraph.OK, LocalGraph.RELOCALISED):
+                p = m.pose.position
+                self.server[device][m.frame_index] = np.array([p.x, p.y, p.z])
+            self.last_activity = time.time()
+
+    def on_object(self, m):
+        with self.lock:
+            self.objects.append((time.time(), m))
+
+    def on_result(self, m):
+        with self.lock:
+            self.results.append(m)
+
+    def on_finished(self, m, device):
+        with self.lock:
+            self.finished[device] = self.finished[device] or m.data
+
+    def render(self, device):
+        out = os.path.join(self.tmp, device)
+        subprocess.run(["rosrun", "ecar_sim", "make_dataset", "--scene", self.scene, "--device",
+                        device, "--frames", str(self.frames), "--out", out, "--quiet"],
+                       check=True, stdout=subprocess.DEVNULL)
+        return out
+
+    def test_stroke_reaches_a_device_far_along_the_corridor(self):
+        datasets = {d: self.render(d) for d in DEVICES}
+        self.assertTrue(os.path.exists(os.path.join(datasets["device_0"], "touches.txt")),
+                        "device_0's dataset has no touches.txt")
+        rospy.Subscriber("/ecar/objects", VirtualObject, self.on_object, queue_size=1000)
+        rospy.Subscriber("/device_0/interaction_result", InteractionResult, self.on_result,
+                         queue_size=1000)
+        for d in DEVICES:
+            rospy.Subscriber("/%s/device_frame" % d, DeviceFrame, self.on_frame, queue_size=500)
+            rospy.Subscriber("/%s/local_graph" % d, LocalGraph, self.on_graph, callback_args=d,
+                             queue_size=500)
+            rospy.Subscriber("/%s/player/finished" % d, Bool, self.on_finished, callback_args=d)
+        rospy.wait_for_service("/ecar/connect", 60.0)
+        for d in DEVICES:
+            self.players.append(subprocess.Popen(
+                ["roslaunch", self.player_launch, "dataset:=" + datasets[d], "device:=" + d,
+                 "pace_by_consumer:=true", "ack_timeout:=5.0", "output:=log"],
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        deadline = time.time() + 300.0
+        while time.time() < deadline and not rospy.is_shutdown():
+            with self.lock:
+                if all(self.finished.values()) and time.time() - self.last_activity > 3.0:
+                    break
+            time.sleep(0.5)
+        with self.lock:
+            self.assertTrue(all(self.finished.values()), "players did not finish: %s" %
+                            self.finished)
+
+        # The touches became VOs, all accepted.
+        rejected = [(r.request_id, r.reason) for r in self.results if not r.accepted]
+        accepted = [r for r in self.results if r.accepted]
+        self.assertEqual(rejected, [], "rejected interactions")
+        self.assertGreaterEqual(len(accepted), 10, "only %d accepted interactions" % len(accepted))
+
+        # Map -> world from the server's poses of both devices.
+        src, dst, records = [], [], []
+        for d in DEVICES:
+            gt = read_groundtruth(datasets[d])
+            for f, p in self.server[d].items():
+                src.append(p)
+                dst.append(gt[f][:3, 3])
+            with open(os.path.join(datasets[d], "camera.yaml")) as f:
+                camera = vm.Camera.from_yaml(yaml.safe_load(f))
+            records.append(vm.DeviceRecord(d, camera, self.device_frames[d], gt,
+                                           self.graph_walls[d]))
+        self.assertGreater(len(self.server["device_1"]), 5, "device_1 never joined the map")
+        sim = vm.Similarity(*vm.umeyama(src, dst))
+
+        # Each VO where it was drawn: floor line at x = 7.5, wall line at y = 2.4, x = 8.5.
+        latest = {}
+        for _, m in self.objects:
+            latest[m.id] = m
+        floor, wall = 0, 0
+        for m in latest.values():
+            p = sim.apply((m.position.x, m.position.y, m.position.z))
+            if abs(p[2]) < 0.1:
+                floor += 1
+                self.assertLess(abs(p[0] - 7.5), 0.1, "floor VO %d at %s" % (m.id, p))
+            else:
+                wall += 1
+                self.assertLess(abs(p[1] - 2.4), 0.1, "wall VO %d at %s" % (m.id, p))
+                self.assertLess(abs(p[0] - 8.5), 0.1, "wall VO %d at %s" % (m.id, p))
+                self.assertTrue(0.8 < p[2] < 1.6, "wall VO %d at %s" % (m.id, p))
+        self.assertGreater(floor, 5, "VOs on the floor: %d" % floor)
+        self.assertGreater(wall, 3, "VOs on the wall: %d" % wall)
+
+        # device_1 held them while far away.
+        states = [vm.VoState(m.id, m.version, m.deleted, m.owner, m.kind,
+                             (m.position.x, m.position.y, m.position.z),
+                             (m.start.x, m.start.y, m.start.z), (m.end.x, m.end.y, m.end.z), w)
+                  for w, m in self.objects]
+        with open(self.scene) as f:
+            space = vm.FreeSpace(yaml.safe_load(f))
+        result = vm.VoEvaluator(vm.Timeline(states), records, space, sim).evaluate()
+        rospy.loginfo("VO metrics: %s", {k: result[k] for k in (
+            "objects", "success", "success_other_devices", "by_distance", "latency",
+            "position_agreement")})
+        d1 = result["by_device"]["device_1"]
+        self.assertGreater(d1["expected"], 50, "device_1 was expected to see VOs on %d frames" %
+                           d1["expected"])
+        self.assertGreaterEqual(d1["success"], 0.95, "device_1 held the VOs on %s of frames" %
+                                d1["success"])
+        far = [b for b in result["by_distance"] if float(b["bin"].split("-")[0]) >= 16.0]
+        self.assertTrue(far, "no frames of device_1 16 m or more from a VO: %s" %
+                        result["by_distance"])
+        for b in far:
+            self.assertGreaterEqual(b["success"], 0.95, "bin %s" % b)
+        self.assertIsNotNone(result["position_agreement"]["max_m"])
+        self.assertLess(result["position_agreement"]["max_m"], 0.05)
+
+
+if __name__ == "__main__":
+    rospy.init_node("vo_sharing_test")
+    rostest.rosrun(PKG, "vo_sharing", VoSharingTest, sys.argv)
