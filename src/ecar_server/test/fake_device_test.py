@@ -56,6 +56,7 @@ import shutil
 import signal
 import sqlite3
 import statistics
+import struct
 import subprocess
 import sys
 import tempfile
@@ -337,6 +338,38 @@ class Server:
             except subprocess.TimeoutExpired:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait()
+
+
+def saved_planes(path):
+    """plane id -> (label, offset, version) from the "planes" section of a map file
+    (layout: ecar_core/map_io.h)."""
+    with open(path, "rb") as f:
+        data = f.read()
+    assert data[:8] == b"ECARMAP\0"
+    count = struct.unpack_from("<I", data, 12)[0]
+    at, sections = 16, {}
+    for _ in range(count):
+        n = data[at]
+        name = data[at + 1:at + 1 + n].decode()
+        offset, length, _ = struct.unpack_from("<QQI", data, at + 1 + n)
+        sections[name] = (offset, length)
+        at += 1 + n + 20
+    at = sections["planes"][0]
+    _, _, planes = struct.unpack_from("<III", data, at)
+    at += 12
+    out = {}
+    for _ in range(planes):
+        pid, label = struct.unpack_from("<IB", data, at)
+        offset, version = struct.unpack_from("<dI", data, at + 5 + 24)
+        at += 5 + 24 + 8 + 8
+        boundary = struct.unpack_from("<I", data, at)[0]
+        at += 4 + 24 * boundary
+        points = struct.unpack_from("<I", data, at)[0]
+        at += 4 + 28 * points
+        keyframes = struct.unpack_from("<I", data, at)[0]
+        at += 4 + 4 * keyframes
+        out[pid] = (label, offset, version)
+    return out
 
 
 def wait_service_gone(name, timeout=10.0):
@@ -685,16 +718,31 @@ class ServerTest(unittest.TestCase):
         self.assertLess(max(errors.values()), 0.02, "%s: poses moved: %s" % (label, errors))
         return [device.graphs[i][0] for i in frames if i in after]
 
-    def check_structure(self, graphs, floor, obj, vo_id, label):
-        """The graphs carry the saved floor plane and the object at version 1, in place."""
-        planes = {p.id: p for g in graphs for p in g.planes}
+    def check_structure(self, graphs, saved, floor, obj, vo_id, label, as_saved):
+        """The graphs carry the saved planes (`saved`: saved_planes()), the floor
+        among them, and the object at version 1, in place. A plane is compared
+        as first sent: the re-uploaded frames may re-estimate it later."""
+        planes = {}
+        for g in graphs:
+            for p in g.planes:
+                planes.setdefault(p.id, p)
         self.assertIn(floor.id, planes, "%s: the floor plane %d is not back (got %s)"
                       % (label, floor.id, sorted(planes)))
-        back = planes[floor.id]
-        self.assertEqual(back.label, Plane.FLOOR)
-        # The floor may have been re-estimated after the device's last graph of
-        # the first session, before the save.
-        self.assertLess(abs(back.offset - floor.offset), 0.02)
+        same = 0
+        for p in planes.values():
+            self.assertIn(p.id, saved, "%s: plane %d is not the file's" % (label, p.id))
+            self.assertEqual(p.label, saved[p.id][0])
+            self.assertGreaterEqual(p.version, saved[p.id][2])
+            if p.version == saved[p.id][2]:
+                self.assertEqual(p.offset, saved[p.id][1])
+                same += 1
+        print("[map] %s: %d planes back, %d of them as saved (the others re-estimated since)"
+              % (label, len(planes), same))
+        # A fresh server has mapped nothing before its first graph: planes as loaded.
+        if as_saved:
+            self.assertGreater(same, 0, "%s: no plane as saved" % label)
+        self.assertEqual(planes[floor.id].label, Plane.FLOOR)
+        self.assertLess(abs(planes[floor.id].offset - saved[floor.id][1]), 0.02)
         objects = [o for g in graphs for o in g.objects if o.id == vo_id]
         self.assertTrue(objects, "%s: the object %d is not back" % (label, vo_id))
         got = objects[-1]
@@ -745,6 +793,12 @@ class ServerTest(unittest.TestCase):
         self.assertGreater(r.planes, 0)
         self.assertEqual(r.objects, 1)
         saved = r
+        planes = saved_planes(map_file)
+        self.assertEqual(len(planes), saved.planes)
+        # The floor the device held, maybe re-estimated since its last graph.
+        self.assertIn(floor.id, planes)
+        self.assertEqual(planes[floor.id][0], Plane.FLOOR)
+        self.assertLess(abs(planes[floor.id][1] - floor.offset), 0.1)
         servers[0].kill9()
         self.assertTrue(wait_service_gone("/ecar/connect"))
 
@@ -755,7 +809,8 @@ class ServerTest(unittest.TestCase):
         self.assertTrue(wait_subscribed(device.pub))
         check = first[-6:]
         graphs = self.realign(device, check, before, "restart with map:=FILE")
-        self.check_structure(graphs, floor, obj, vo_id, "restart with map:=FILE")
+        self.check_structure(graphs, planes, floor, obj, vo_id, "restart with map:=FILE",
+                             True)
 
         # Bad files: refused with a message naming the file; the server goes on.
         load = rospy.ServiceProxy("/ecar/load_map", LoadMap)
@@ -787,7 +842,8 @@ class ServerTest(unittest.TestCase):
                          (saved.keyframes, saved.map_points, saved.planes, saved.objects))
         graphs = self.realign(device, check, before, "load_map while running")
         self.assertTrue(all(g.map_epoch != epoch for g in graphs), "the map epoch did not change")
-        self.check_structure(graphs, floor, obj, vo_id, "load_map while running")
+        self.check_structure(graphs, planes, floor, obj, vo_id, "load_map while running",
+                             False)
 
         # The loaded object is in the new server's database (kill -9 keeps it).
         servers[1].kill9()
