@@ -275,17 +275,20 @@ void MapFileWriter::write(const std::string& path) const {
   const std::string tmp =
       path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(writes++);
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) throw Error("map file " + quoted(tmp) + ": cannot create: " + errnoText());
+  if (fd < 0) {
+    throw Error("map file " + quoted(path) + ": cannot create its temporary file " + quoted(tmp) +
+                ": " + errnoText());
+  }
   if (!writeAll(fd, bytes) || ::fsync(fd) != 0) {
     const std::string why = errnoText();
     ::close(fd);
     ::unlink(tmp.c_str());
-    throw Error("map file " + quoted(tmp) + ": write failed: " + why);
+    throw Error("map file " + quoted(path) + ": writing " + quoted(tmp) + " failed: " + why);
   }
   if (::close(fd) != 0) {
     const std::string why = errnoText();
     ::unlink(tmp.c_str());
-    throw Error("map file " + quoted(tmp) + ": close failed: " + why);
+    throw Error("map file " + quoted(path) + ": closing " + quoted(tmp) + " failed: " + why);
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
     const std::string why = errnoText();
