@@ -21,12 +21,12 @@ check() {  # check FILE EXPECTED_NODE_COUNT ARGS...
   fi
   echo "  ok   $file $* ($n nodes)"
 }
-check server.launch 8
+check server.launch 9
 check device.launch 1 device:=device_0
 check player.launch 1 dataset:=/tmp
 check multi_device.launch 8 devices:=4 datasets:=/tmp
-check demo.launch 14 datasets:=/tmp
-check demo.launch 13 datasets:=/tmp rviz:=false
-check replay.launch 10 bag:=/tmp/x.bag
+check demo.launch 15 datasets:=/tmp
+check demo.launch 14 datasets:=/tmp rviz:=false
+check replay.launch 11 bag:=/tmp/x.bag
 echo "launch_files_test: $failures failure(s)"
 exit $((failures > 0))

@@ -649,11 +649,16 @@ std::vector<PlaneRecord> PlaneMap::save() const {
   return out;
 }
 
-void PlaneMap::load(const std::vector<PlaneRecord>& records) {
+uint32_t PlaneMap::nextId() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return next_id_;
+}
+
+void PlaneMap::load(const std::vector<PlaneRecord>& records, uint32_t next_id) {
   std::unordered_map<PlaneId, Entry> planes;
   std::unordered_map<MapPointId, PlaneId> owner;
   std::unordered_map<KeyFrameId, std::vector<PlaneId>> links;
-  uint32_t next = 1;
+  uint32_t next = std::max<uint32_t>(1, next_id);
   for (const auto& r : records) {
     const PlaneId id = r.plane.id;
     const std::string what = "planes: record of plane " + std::to_string(id.value);
@@ -667,7 +672,11 @@ void PlaneMap::load(const std::vector<PlaneRecord>& records) {
     e.plane = r.plane;
     for (const auto& p : r.points) {
       e.points[p.id] = p.p_w;
-      owner[p.id] = id;
+      const auto held = owner.emplace(p.id, id);
+      if (held.first->second != id) {
+        throw Error(what + ": point " + std::to_string(p.id.value) + " is held by plane " +
+                    std::to_string(held.first->second.value) + " too");
+      }
     }
     for (KeyFrameId kf : r.keyframes) {
       e.keyframes.insert(kf);

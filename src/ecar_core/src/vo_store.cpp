@@ -262,6 +262,27 @@ class VoStore::Database {
     return true;
   }
 
+  /// Replaces every row and the id counter in one transaction. Returns false
+  /// with `error` set when it fails (the transaction is rolled back).
+  bool replaceAll(const std::vector<const Entry*>& entries, uint32_t next_id, std::string* error) {
+    if (!exec("BEGIN IMMEDIATE", error)) return false;
+    bool ok = exec("DELETE FROM objects", error);
+    for (size_t i = 0; ok && i < entries.size(); ++i) ok = bindEntry(*entries[i]) && step(upsert_);
+    if (ok) {
+      ok = sqlite3_bind_text(set_meta_, 1, "next_id", -1, SQLITE_STATIC) == SQLITE_OK &&
+           sqlite3_bind_text(set_meta_, 2, std::to_string(next_id).c_str(), -1, SQLITE_TRANSIENT) ==
+               SQLITE_OK &&
+           step(set_meta_);
+    }
+    if (ok) ok = exec("COMMIT", error);
+    if (!ok) {
+      if (error->empty()) *error = sqlite3_errmsg(db_);
+      if (!sqlite3_get_autocommit(db_)) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
+      return false;
+    }
+    return true;
+  }
+
   /// Copies the database to `path` (online backup API).
   void backupTo(const std::string& path) const {
     sqlite3* dest = nullptr;
@@ -893,6 +914,75 @@ void VoStore::setMapBounds(const Eigen::Vector3d& map_min, const Eigen::Vector3d
   std::unique_lock<std::shared_mutex> state(state_mutex_);
   map_min_ = map_min;
   map_max_ = map_max;
+}
+
+void checkVoSnapshot(const VoSnapshot& snapshot, const std::string& context) {
+  std::unordered_map<ObjectId, bool> seen;
+  for (const VoRecord& r : snapshot.objects) {
+    const VirtualObject& vo = r.vo;
+    const std::string what = context + ": object " + std::to_string(vo.id.value);
+    if (!vo.id.valid()) throw Error(context + ": an object has the invalid id 0");
+    if (!seen.emplace(vo.id, true).second) throw Error(what + " appears twice");
+    if (!(vo.id < snapshot.next_id)) {
+      throw Error(what + ": id not below the id counter " + std::to_string(snapshot.next_id.value));
+    }
+    if (vo.kind != VoKind::kLine && vo.kind != VoKind::kAnchor)
+      throw Error(what + ": unknown kind");
+    if (!finiteVector(vo.position) || !finiteVector(vo.start) || !finiteVector(vo.end) ||
+        !finiteVector(vo.normal) || !std::isfinite(vo.width)) {
+      throw Error(what + ": a coordinate, the normal or the width is not finite");
+    }
+    if (vo.version < 1) throw Error(what + ": version 0");
+    if (r.editor_since > vo.version) throw Error(what + ": editor_since is after its version");
+  }
+}
+
+VoSnapshot VoStore::snapshot() const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  VoSnapshot out;
+  out.next_id = ObjectId(next_id_);
+  out.objects.reserve(objects_.size());
+  for (const auto& [id, e] : objects_) {
+    out.objects.push_back(VoRecord{e.vo, e.keyframe, e.last_editor, e.editor_since});
+  }
+  std::sort(out.objects.begin(), out.objects.end(),
+            [](const VoRecord& a, const VoRecord& b) { return a.vo.id < b.vo.id; });
+  return out;
+}
+
+void VoStore::replaceAll(const VoSnapshot& snapshot) {
+  checkVoSnapshot(snapshot, config_.database_path + ": replacing the VOs");
+  std::unordered_map<ObjectId, Entry> objects;
+  std::vector<const Entry*> rows;
+  size_t live = 0;
+  for (const VoRecord& r : snapshot.objects) {
+    Entry e;
+    e.vo = r.vo;
+    e.keyframe = r.keyframe;
+    e.last_editor = r.last_editor;
+    e.editor_since = r.editor_since;
+    if (!e.vo.deleted) {
+      e.cells = attachmentCells(e.vo, config_.cell_size, config_.attach_margin);
+      ++live;
+    }
+    objects.emplace(e.vo.id, std::move(e));
+  }
+  for (const VoRecord& r : snapshot.objects) rows.push_back(&objects.at(r.vo.id));
+  std::lock_guard<std::mutex> write(write_mutex_);
+  const uint32_t next_id = std::max(next_id_, snapshot.next_id.value);
+  std::string error;
+  if (!db_->replaceAll(rows, next_id, &error)) {
+    throw Error(config_.database_path + ": replacing the VOs failed: " + error);
+  }
+  std::unique_lock<std::shared_mutex> state(state_mutex_);
+  objects_ = std::move(objects);
+  cell_index_.clear();
+  keyframe_index_.clear();
+  for (const auto& kv : objects_) {
+    if (!kv.second.vo.deleted) attach(kv.second);
+  }
+  num_live_ = live;
+  next_id_ = next_id;
 }
 
 void VoStore::backupTo(const std::string& path) const {

@@ -111,6 +111,14 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
     graph->tracking_time = msg->tracking_time;
     graph->server_sent = ros::Time::now();
     graph->server_time = static_cast<float>((graph->server_sent - msg->server_received).toSec());
+    // Built while a map was loaded, or from an alignment in the old map: dropped
+    // (and what it counted as sent, positions and planes, forgotten).
+    if (ctx_->mapStale(msg->server_received.toSec())) {
+      ctx_->resetMirror(info->name);
+      std::lock_guard<std::mutex> lock(mutex_);
+      sent_planes_.erase(info->name);
+      return;
+    }
     pub.publish(graph);
   }
 
@@ -135,6 +143,10 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
     {
       // Planes the device holds at this version are refreshed only now and then.
       std::lock_guard<std::mutex> lock(mutex_);
+      if (structure.generation() != sent_generation_) {  // a map was loaded: send every plane
+        sent_planes_.clear();
+        sent_generation_ = structure.generation();
+      }
       SentPlanes& sent = sent_planes_[device];
       ++sent.graphs;
       for (const auto& p : v.planes) {
@@ -232,6 +244,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
     std::map<ecar::PlaneId, Sent> planes;
   };
   std::map<std::string, SentPlanes> sent_planes_;
+  uint64_t sent_generation_ = 0;  ///< Structure::generation() sent_planes_ belongs to
   // Timing of Structure::visible (the tracked-frame callback runs one at a time).
   size_t stats_count_ = 0;
   double stats_sum_ms_ = 0.0, stats_max_ms_ = 0.0;

@@ -44,6 +44,8 @@ class PlaneSegmentationNodelet : public nodelet::Nodelet {
     const std::shared_ptr<ecar::SlamSystem> slam = ctx_->slam();
     if (!slam) return;
     const MappedKeyFrame event = fromMsg(*msg);
+    // Read before the copy: a map loaded meanwhile makes the copy stale.
+    const uint64_t generation = ctx_->structure().generation();
     ecar::PlaneKeyFrameInput input;
     input.keyframe = event.id;
     ecar::SE3 T_w_c;
@@ -85,8 +87,9 @@ class PlaneSegmentationNodelet : public nodelet::Nodelet {
     Structure& structure = ctx_->structure();
     try {
       input.up_w = ecar::upFromGravity(T_w_c, *gravity_c);
-      const KeyFrameStructure r =
-          structure.integrateKeyFrame(input, T_w_c, *structure.gridConnection(slam->camera()));
+      const KeyFrameStructure r = structure.integrateKeyFrame(
+          input, T_w_c, *structure.gridConnection(slam->camera()), generation);
+      if (r.stale) return;  // copied from a map replaced since
       NODELET_DEBUG(
           "keyframe %u: %zu points, %zu planes found, %zu created, %zu updated, "
           "%zu cells; segment %.1f ms, integrate %.1f ms, grid %.1f ms",

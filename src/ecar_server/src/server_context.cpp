@@ -271,6 +271,23 @@ std::shared_ptr<ecar::SlamSystem> ServerContext::slam() const {
   return slam_;
 }
 
+std::shared_ptr<ecar::SlamSystem> ServerContext::slamFor(const ecar::PinholeCamera& camera) {
+  std::lock_guard<std::mutex> events(events_mutex_);
+  std::shared_ptr<ecar::SlamSystem> created;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (slam_) {
+      const std::string why = cameraMismatch(camera);
+      if (!why.empty()) throw ecar::Error("the map's camera differs from the server's: " + why);
+      return slam_;
+    }
+    slam_ = std::make_shared<ecar::SlamSystem>(camera, config_.slamConfig());
+    created = slam_;
+  }
+  for (ContextListener* l : listeners_) l->onSlamCreated(created);
+  return created;
+}
+
 uint32_t ServerContext::mapEpoch() const {
   std::shared_ptr<ecar::SlamSystem> slam = this->slam();
   if (!slam) return start_epoch_;
@@ -296,6 +313,36 @@ bool ServerContext::withMirror(const std::string& name,
 
 bool ServerContext::resetMirror(const std::string& name) {
   return withMirror(name, [](ecar::DeviceMirror& m) { m.reset(); });
+}
+
+void ServerContext::resetMirrors() {
+  std::vector<std::string> names;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& kv : devices_) names.push_back(kv.first);
+  }
+  for (const auto& name : names) resetMirror(name);
+}
+
+void ServerContext::beginMapReplace() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++replacing_;
+}
+
+void ServerContext::mapReplaced(double now) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  --replacing_;
+  replaced_at_ = std::max(replaced_at_, now);
+}
+
+void ServerContext::mapReplaceFailed() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  --replacing_;
+}
+
+bool ServerContext::mapStale(double received) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return replacing_ > 0 || received < replaced_at_;
 }
 
 void ServerContext::addListener(ContextListener* listener) {

@@ -54,8 +54,14 @@ std::shared_ptr<const ecar::GridPlanes> Structure::gridPlanes() const {
 
 KeyFrameStructure Structure::integrateKeyFrame(const ecar::PlaneKeyFrameInput& input,
                                                const ecar::SE3& T_w_c,
-                                               const ecar::GridConnection& grid) {
+                                               const ecar::GridConnection& grid,
+                                               std::optional<uint64_t> generation) {
   KeyFrameStructure out;
+  std::shared_lock<std::shared_mutex> replace(replace_mutex_);
+  if (generation && *generation != generation_.load()) {
+    out.stale = true;
+    return out;
+  }
   auto start = std::chrono::steady_clock::now();
   const std::vector<ecar::PlaneObservation> observations = segmenter_.segment(input);
   out.observations = observations.size();
@@ -86,6 +92,7 @@ KeyFrameStructure Structure::integrateKeyFrame(const ecar::PlaneKeyFrameInput& i
 }
 
 void Structure::eraseKeyFrame(ecar::KeyFrameId id) {
+  std::shared_lock<std::shared_mutex> replace(replace_mutex_);
   planes_.eraseKeyFrame(id);
   grid_.eraseKeyFrame(id);
 }
@@ -95,6 +102,7 @@ VisibleStructure Structure::visible(const ecar::SE3& T_w_c,
                                     const ecar::GridConnection& grid) {
   const auto start = std::chrono::steady_clock::now();
   VisibleStructure out;
+  std::shared_lock<std::shared_mutex> replace(replace_mutex_);
   const std::shared_ptr<const ecar::GridPlanes> grid_planes = gridPlanes();
   thread_local std::vector<ecar::SampleHit> hits;
   grid.castSamples(T_w_c, *grid_planes, &hits);
@@ -149,6 +157,36 @@ VisibleStructure Structure::visible(const ecar::SE3& T_w_c,
   }
   out.milliseconds = msSince(start);
   return out;
+}
+
+std::unique_lock<std::shared_mutex> Structure::lockForReplace() {
+  return std::unique_lock<std::shared_mutex>(replace_mutex_);
+}
+
+ecar::StructureState Structure::save() {
+  ecar::StructureState state;
+  state.planes = planes_.save();
+  state.next_plane_id = planes_.nextId();
+  state.grid = grid_.save();
+  state.vos = vos().snapshot();
+  return state;
+}
+
+void Structure::replace(const ecar::StructureState& state,
+                        const std::function<void()>& install_slam) {
+  vos().replaceAll(state.vos);
+  if (install_slam) install_slam();
+  planes_.load(state.planes, state.next_plane_id);
+  grid_.load(state.grid);
+  auto snapshot =
+      std::make_shared<const ecar::GridPlanes>(planes_.planes(), config_.grid.boundary_margin);
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    grid_planes_ = std::move(snapshot);
+    grid_planes_revision_ = planes_.revision();
+    device_cells_.clear();
+  }
+  ++generation_;
 }
 
 void Structure::setDeviceCells(const std::string& device, std::vector<ecar::CellKey> cells) {

@@ -33,6 +33,18 @@ killed (SIGKILL) and restarted on the same database: the object is in the
 database at its version and, after the device re-maps the same images, in the
 new server's local graphs.
 
+~scenario "map": the test starts the server itself. One fake device maps the
+first two thirds of the sequence and registers a line on the floor; the map is
+saved with /ecar/save_map (an unwritable path fails with a message naming it).
+The server is killed (SIGKILL) and a fresh one, on an empty VO database,
+starts with map:=FILE: the device, re-uploading the same frames, is aligned in
+the same coordinate system (each frame's pose within 2 cm of its pose before),
+and its graphs carry the saved planes and the object (same id, version and
+position). /ecar/load_map of a corrupt copy and of a missing file fail with a
+message naming the file while the server keeps serving; a load of the good
+file moves the map epoch on and the device is aligned the same again. After a
+kill -9, the object is in the new server's database.
+
 Prints the measured figures (bytes, bytes per point, server time).
 """
 
@@ -44,6 +56,7 @@ import shutil
 import signal
 import sqlite3
 import statistics
+import struct
 import subprocess
 import sys
 import tempfile
@@ -59,7 +72,7 @@ import rostest
 import yaml
 import rosgraph
 from ecar_msgs.msg import Interaction, InteractionResult, LocalGraph, Plane, Upload, VirtualObject
-from ecar_msgs.srv import Connect, ConnectRequest
+from ecar_msgs.srv import Connect, ConnectRequest, LoadMap, SaveMap
 from geometry_msgs.msg import PointStamped
 from rosgraph_msgs.msg import Log
 from sensor_msgs.msg import CameraInfo
@@ -301,11 +314,11 @@ def floor_line(graph, plane, camera, u, v, half_length=0.2):
 class Server:
     """server.launch run by the test (so that it can kill -9 it)."""
 
-    def __init__(self, database, vo_attach="grid"):
+    def __init__(self, database, vo_attach="grid", map_file=""):
         root = os.path.join(rospkg.RosPack().get_path("ecar_server"), "..", "..")
         self.proc = subprocess.Popen(
             ["roslaunch", os.path.join(root, "launch", "server.launch"), "output:=log",
-             "database:=" + database, "vo_attach:=" + vo_attach],
+             "database:=" + database, "vo_attach:=" + vo_attach, "map:=" + map_file],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
     def manager_pid(self):
@@ -325,6 +338,38 @@ class Server:
             except subprocess.TimeoutExpired:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait()
+
+
+def saved_planes(path):
+    """plane id -> (label, offset, version) from the "planes" section of a map file
+    (layout: ecar_core/map_io.h)."""
+    with open(path, "rb") as f:
+        data = f.read()
+    assert data[:8] == b"ECARMAP\0"
+    count = struct.unpack_from("<I", data, 12)[0]
+    at, sections = 16, {}
+    for _ in range(count):
+        n = data[at]
+        name = data[at + 1:at + 1 + n].decode()
+        offset, length, _ = struct.unpack_from("<QQI", data, at + 1 + n)
+        sections[name] = (offset, length)
+        at += 1 + n + 20
+    at = sections["planes"][0]
+    _, _, planes = struct.unpack_from("<III", data, at)
+    at += 12
+    out = {}
+    for _ in range(planes):
+        pid, label = struct.unpack_from("<IB", data, at)
+        offset, version = struct.unpack_from("<dI", data, at + 5 + 24)
+        at += 5 + 24 + 8 + 8
+        boundary = struct.unpack_from("<I", data, at)[0]
+        at += 4 + 24 * boundary
+        points = struct.unpack_from("<I", data, at)[0]
+        at += 4 + 28 * points
+        keyframes = struct.unpack_from("<I", data, at)[0]
+        at += 4 + 4 * keyframes
+        out[pid] = (label, offset, version)
+    return out
 
 
 def wait_service_gone(name, timeout=10.0):
@@ -393,6 +438,8 @@ class ServerTest(unittest.TestCase):
             self.run_edgeslam()
         elif scenario == "vo":
             self.run_vo()
+        elif scenario == "map":
+            self.run_map()
         else:
             self.run_bad_input()
 
@@ -634,6 +681,180 @@ class ServerTest(unittest.TestCase):
             self.assertGreater(res.object_id, vo_id)
         finally:
             restarted.stop()
+
+    def run_map(self):
+        folder = tempfile.mkdtemp(prefix="ecar_map_test_")
+        servers = []
+        try:
+            self.map_session(folder, servers)
+        finally:
+            for server in servers:
+                server.stop()
+            shutil.rmtree(folder, ignore_errors=True)
+
+    @staticmethod
+    def poses(device, frames):
+        """frame -> (x, y, z) of the tracked graphs among `frames`."""
+        out = {}
+        for i in frames:
+            got = device.graphs.get(i)
+            if got and got[0].status in TRACKED:
+                p = got[0].pose.position
+                out[i] = (p.x, p.y, p.z)
+        return out
+
+    def realign(self, device, frames, before, label):
+        """Uploads `frames` (the first with reset) until tracked; asserts the poses."""
+        device.graphs.clear()
+        self.upload_all(device, frames, True)
+        after = self.poses(device, frames)
+        self.assertTrue(after, "%s: no upload was aligned in the loaded map" % label)
+        errors = {i: math.dist(after[i], before[i]) for i in after if i in before}
+        self.assertTrue(errors, "%s: no frame tracked in both sessions" % label)
+        print("[map] %s: %d of %d uploads aligned, pose difference to the first session: "
+              "max %.2f cm, median %.2f cm" % (label, len(after), len(frames),
+                                               100 * max(errors.values()),
+                                               100 * statistics.median(errors.values())))
+        self.assertLess(max(errors.values()), 0.02, "%s: poses moved: %s" % (label, errors))
+        return [device.graphs[i][0] for i in frames if i in after]
+
+    def check_structure(self, graphs, saved, floor, obj, vo_id, label, as_saved):
+        """The graphs carry the saved planes (`saved`: saved_planes()), the floor
+        among them, and the object at version 1, in place. A plane is compared
+        as first sent: the re-uploaded frames may re-estimate it later."""
+        planes = {}
+        for g in graphs:
+            for p in g.planes:
+                planes.setdefault(p.id, p)
+        self.assertIn(floor.id, planes, "%s: the floor plane %d is not back (got %s)"
+                      % (label, floor.id, sorted(planes)))
+        same = 0
+        for p in planes.values():
+            self.assertIn(p.id, saved, "%s: plane %d is not the file's" % (label, p.id))
+            self.assertEqual(p.label, saved[p.id][0])
+            self.assertGreaterEqual(p.version, saved[p.id][2])
+            if p.version == saved[p.id][2]:
+                self.assertEqual(p.offset, saved[p.id][1])
+                same += 1
+        print("[map] %s: %d planes back, %d of them as saved (the others re-estimated since)"
+              % (label, len(planes), same))
+        # A fresh server has mapped nothing before its first graph: planes as loaded.
+        if as_saved:
+            self.assertGreater(same, 0, "%s: no plane as saved" % label)
+        self.assertEqual(planes[floor.id].label, Plane.FLOOR)
+        self.assertLess(abs(planes[floor.id].offset - saved[floor.id][1]), 0.02)
+        objects = [o for g in graphs for o in g.objects if o.id == vo_id]
+        self.assertTrue(objects, "%s: the object %d is not back" % (label, vo_id))
+        got = objects[-1]
+        self.assertEqual(got.version, 1)
+        self.assertFalse(got.deleted)
+        self.assertLess(math.dist((got.position.x, got.position.y, got.position.z),
+                                  (obj.position.x, obj.position.y, obj.position.z)), 1e-6)
+
+    def map_session(self, folder, servers):
+        map_file = os.path.join(folder, "session.ecarmap")
+        servers.append(Server(os.path.join(folder, "first.sqlite")))
+        device = FakeDevice("device_0", self.dataset)
+        self.assertTrue(device.connect().accepted)
+        self.assertTrue(wait_subscribed(device.pub))
+        good = list(range(0, len(self.dataset.frames), self.every))
+        first = good[:len(good) * 2 // 3]
+        self.upload_all(device, first, True)
+        before = self.poses(device, first)
+        tracked = [device.graphs[i][0] for i in first if i in before]
+        self.assertGreaterEqual(len(tracked), 5, "the first session hardly tracked")
+        held = {}
+        for g in tracked:
+            for p in g.planes:
+                if p.id not in held or held[p.id].version <= p.version:
+                    held[p.id] = p
+        floors = [p for p in held.values() if p.label == Plane.FLOOR]
+        self.assertTrue(floors, "no FLOOR plane in the first session")
+        floor = max(floors, key=lambda p: p.num_points)
+        obj = floor_line(tracked[-1], floor, self.dataset.camera, 319.5, 400.0)
+        self.assertIsNotNone(obj)
+        res = device.interact(1, Interaction.REGISTER, obj)
+        self.assertTrue(res is not None and res.accepted, res and res.reason)
+        vo_id = res.object_id
+
+        rospy.wait_for_service("/ecar/save_map", timeout=10.0)
+        save = rospy.ServiceProxy("/ecar/save_map", SaveMap)
+        bad_path = os.path.join(folder, "no_such_dir", "x.ecarmap")
+        r = save(bad_path)
+        self.assertFalse(r.success)
+        self.assertIn(bad_path, r.message)
+        print("[map] save to an unwritable path: %s" % r.message)
+        start = time.time()
+        r = save(map_file)
+        print("[map] save_map: %s (call %.0f ms)" % (r.message, 1000 * (time.time() - start)))
+        self.assertTrue(r.success, r.message)
+        self.assertGreater(r.keyframes, 0)
+        self.assertGreater(r.map_points, 0)
+        self.assertGreater(r.planes, 0)
+        self.assertEqual(r.objects, 1)
+        saved = r
+        planes = saved_planes(map_file)
+        self.assertEqual(len(planes), saved.planes)
+        # The floor the device held, maybe re-estimated since its last graph.
+        self.assertIn(floor.id, planes)
+        self.assertEqual(planes[floor.id][0], Plane.FLOOR)
+        self.assertLess(abs(planes[floor.id][1] - floor.offset), 0.1)
+        servers[0].kill9()
+        self.assertTrue(wait_service_gone("/ecar/connect"))
+
+        # A fresh server on an empty database, resuming the saved map.
+        servers.append(Server(os.path.join(folder, "second.sqlite"), map_file=map_file))
+        rospy.wait_for_service("/ecar/load_map", timeout=30.0)
+        self.assertTrue(device.connect().accepted)
+        self.assertTrue(wait_subscribed(device.pub))
+        check = first[-6:]
+        graphs = self.realign(device, check, before, "restart with map:=FILE")
+        self.check_structure(graphs, planes, floor, obj, vo_id, "restart with map:=FILE",
+                             True)
+
+        # Bad files: refused with a message naming the file; the server goes on.
+        load = rospy.ServiceProxy("/ecar/load_map", LoadMap)
+        with open(map_file, "rb") as f:
+            data = bytearray(f.read())
+        corrupt = os.path.join(folder, "corrupt.ecarmap")
+        data[len(data) // 2] ^= 0x5A
+        with open(corrupt, "wb") as f:
+            f.write(bytes(data))
+        for path, word in [(corrupt, "CRC"), (os.path.join(folder, "missing.ecarmap"), "")]:
+            r = load(path)
+            print("[map] load_map %s: success %s, %s" % (os.path.basename(path), r.success,
+                                                          r.message))
+            self.assertFalse(r.success)
+            self.assertIn(path, r.message)
+            self.assertIn(word, r.message)
+        epoch = device.graphs[check[-1]][0].map_epoch
+        device.upload(check[-1])
+        got = device.wait_graph(check[-1])
+        self.assertTrue(got and got[0].status in TRACKED, "the server stopped tracking")
+        self.assertEqual(got[0].map_epoch, epoch, "a failed load changed the map epoch")
+
+        # A live load of the good file: a new epoch, the same coordinate system.
+        start = time.time()
+        r = load(map_file)
+        print("[map] load_map: %s (call %.0f ms)" % (r.message, 1000 * (time.time() - start)))
+        self.assertTrue(r.success, r.message)
+        self.assertEqual((r.keyframes, r.map_points, r.planes, r.objects),
+                         (saved.keyframes, saved.map_points, saved.planes, saved.objects))
+        graphs = self.realign(device, check, before, "load_map while running")
+        self.assertTrue(all(g.map_epoch != epoch for g in graphs), "the map epoch did not change")
+        self.check_structure(graphs, planes, floor, obj, vo_id, "load_map while running",
+                             False)
+
+        # The loaded object is in the new server's database (kill -9 keeps it).
+        servers[1].kill9()
+        self.assertTrue(wait_service_gone("/ecar/connect"))
+        db = sqlite3.connect(os.path.join(folder, "second.sqlite"))
+        try:
+            rows = db.execute("SELECT version, deleted FROM objects WHERE id = ?",
+                              (vo_id,)).fetchall()
+        finally:
+            db.close()
+        self.assertEqual(rows, [(1, 0)], "the loaded object is not in the database")
 
 
 if __name__ == "__main__":

@@ -1,8 +1,8 @@
 // Map files: the server's whole map in one binary file, so that a session can
 // resume in the same coordinate system.
 //
-// A map file is a container of named sections ("slam" here; the integrator
-// adds "planes", "grid", "vos"), each checked by its own CRC-32:
+// A map file is a container of named sections ("slam", "planes", "grid",
+// "vos"), each checked by its own CRC-32:
 //
 //   offset 0   magic "ECARMAP" and a zero byte (8 bytes)
 //          8   u32 format version (kMapFileVersion)
@@ -44,6 +44,9 @@
 #include "ecar_core/camera.h"
 #include "ecar_core/geometry.h"
 #include "ecar_core/map.h"
+#include "ecar_core/planes.h"
+#include "ecar_core/types.h"
+#include "ecar_core/vo_store.h"
 
 namespace ecar {
 
@@ -51,6 +54,12 @@ namespace ecar {
 constexpr uint32_t kMapFileVersion = 1;
 /// Section of the SLAM map (keyframes, points, id counters, epoch, camera).
 constexpr const char* kSlamSection = "slam";
+/// Section of the structure planes (PlaneMap: planes, points, keyframe links, id counter).
+constexpr const char* kPlanesSection = "planes";
+/// Section of the grid's keyframe-cell links (GridMap).
+constexpr const char* kGridSection = "grid";
+/// Section of the virtual objects (VoStore: objects, tombstones, attachments, id counter).
+constexpr const char* kVosSection = "vos";
 
 /// CRC-32 of IEEE 802.3 (reflected polynomial 0xEDB88320, as zlib and PNG), of
 /// `size` bytes, continuing from `crc` (0 to start). crc32("123456789") is
@@ -203,5 +212,52 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& camera);
 /// values impossible, or the camera or pyramid differ from the saved ones.
 std::unique_ptr<Map> decodeSlamMap(ByteReader in, const PinholeCamera& camera,
                                    const ScaleInfo& scale);
+
+/// The camera a "slam" section was made with (its first fields), to create a
+/// SLAM system for a map loaded before any device connected. Throws
+/// ecar::Error as decodeSlamMap() does.
+PinholeCamera decodeSlamCamera(ByteReader in);
+
+/// Keyframe-cell links as GridMap::save() returns them.
+using GridLinks = std::vector<std::pair<KeyFrameId, std::vector<CellKey>>>;
+
+/// Planes, grid links and virtual objects: what a map file holds besides the
+/// SLAM map. Plain values: decoded into one, then swapped in.
+struct StructureState {
+  std::vector<PlaneRecord> planes;  ///< PlaneMap::save()
+  uint32_t next_plane_id = 1;       ///< PlaneMap::nextId()
+  GridLinks grid;                   ///< GridMap::save()
+  VoSnapshot vos;                   ///< VoStore::snapshot()
+};
+
+/// "planes" section: u32 version, u32 next id, u32 count, each plane: u32 id,
+/// u8 label, vec3 normal, f64 offset, u32 version, u32 num_points, u32 B, B x
+/// vec3 boundary, u32 P, P x (u32 point id, vec3 p_w), u32 K, K x u32 keyframe.
+std::vector<uint8_t> encodePlanes(const std::vector<PlaneRecord>& planes, uint32_t next_id);
+/// Decodes and checks (ids valid, unique, below the next id; unit finite
+/// normals; a point in one plane; label known). Throws ecar::Error naming the
+/// field.
+std::vector<PlaneRecord> decodePlanes(ByteReader in, uint32_t* next_id);
+
+/// "grid" section: u32 version, u32 count, each: u32 keyframe, u32 N, N x
+/// (i32 x, y, z).
+std::vector<uint8_t> encodeGrid(const GridLinks& links);
+/// Decodes and checks (keyframe ids valid and unique). Throws ecar::Error.
+GridLinks decodeGrid(ByteReader in);
+
+/// "vos" section: u32 version, u32 next id, u32 count, each: u32 id, u8 kind,
+/// vec3 position, start, end, u8 r, g, b, f32 width, vec3 normal, u32 plane,
+/// string owner, u32 version, u8 deleted, u32 keyframe, string last editor,
+/// u32 editor since.
+std::vector<uint8_t> encodeVos(const VoSnapshot& vos);
+/// Decodes and checks (checkVoSnapshot). Throws ecar::Error naming the field.
+VoSnapshot decodeVos(ByteReader in);
+
+/// Adds the "planes", "grid" and "vos" sections.
+void addStructureSections(MapFileWriter* writer, const StructureState& state);
+/// Decodes the "planes", "grid" and "vos" sections (CRC checked, each
+/// required). Touches nothing; throws ecar::Error naming the file, the
+/// section and the field.
+StructureState readStructureSections(const MapFileReader& reader);
 
 }  // namespace ecar

@@ -207,9 +207,14 @@ class PlaneMap {
 
   /// Every plane with its points and links, by increasing id.
   std::vector<PlaneRecord> save() const;
-  /// Replaces the contents by saved records; new ids continue after the largest.
-  /// Throws ecar::Error on an invalid id, a duplicate id or a non-unit normal.
-  void load(const std::vector<PlaneRecord>& records);
+  /// The id the next new plane gets (above every id ever given out, also of
+  /// planes merged away since).
+  uint32_t nextId() const;
+  /// Replaces the contents by saved records; new ids continue at `next_id` or
+  /// after the largest record id, whichever is higher. Throws ecar::Error on an
+  /// invalid id, a duplicate id, a non-unit normal or a point held by two
+  /// planes; then nothing is changed.
+  void load(const std::vector<PlaneRecord>& records, uint32_t next_id = 1);
   void clear();
 
  private:

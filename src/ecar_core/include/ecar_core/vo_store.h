@@ -137,6 +137,26 @@ struct VoOutcome {
   std::string reason;  ///< why it was rejected, naming the value; empty when accepted
 };
 
+/// Everything stored about one object (for saving and loading the map).
+struct VoRecord {
+  VirtualObject vo;           ///< latest state (a tombstone when vo.deleted)
+  KeyFrameId keyframe;        ///< keyframe attachment (0 = none)
+  std::string last_editor;    ///< who made the latest change
+  uint32_t editor_since = 0;  ///< every change after this version was last_editor's
+};
+
+/// The whole store: every object (tombstones included) and the id counter.
+struct VoSnapshot {
+  std::vector<VoRecord> objects;  ///< by increasing id
+  ObjectId next_id{1};            ///< the id the next registration gets
+};
+
+/// Checks a snapshot before it replaces a store's contents: ids valid, unique
+/// and below next_id; versions >= 1; editor_since <= version; coordinates,
+/// normal and width finite; kind known. Throws ecar::Error naming the object
+/// and the field (`context` prefixes the text).
+void checkVoSnapshot(const VoSnapshot& snapshot, const std::string& context);
+
 /// The cells a VO is attached to in grid mode: every cell (floor(X / cell),
 /// floor(Y / cell), floor(Z / cell)) its geometry crosses (an ANCHOR's point, a
 /// LINE's segment by a 3D DDA), and every cell within `margin` (per axis) of
@@ -198,6 +218,19 @@ class VoStore {
   /// Replaces the map bounds (e.g. by the map's extent plus a margin) for the
   /// checks of later changes. Throws ecar::Error when min > max or not finite.
   void setMapBounds(const Eigen::Vector3d& map_min, const Eigen::Vector3d& map_max);
+
+  /// Every object with its attachment and editor, and the id counter, taken
+  /// under one lock (a consistent copy).
+  VoSnapshot snapshot() const;
+  /// Replaces every object by the snapshot's (a loaded map): checks it
+  /// (checkVoSnapshot), rewrites the database in one transaction (all rows and
+  /// the id counter) and only then swaps the objects in memory, so a failure
+  /// (throws ecar::Error naming the database and the problem) leaves both the
+  /// database and the store as they were, and a kill -9 right after the
+  /// call keeps the loaded objects. Cells are recomputed from the geometry.
+  /// Ids are never reused: the id counter becomes the larger of the
+  /// snapshot's and the store's.
+  void replaceAll(const VoSnapshot& snapshot);
 
   /// Writes a consistent copy of the database to `path` (SQLite online
   /// backup), e.g. to save a session. Throws ecar::Error when it fails.

@@ -88,8 +88,12 @@ class ServerContext {
   /// Name of a device id ever registered, empty when unknown.
   std::string deviceName(ecar::DeviceId id) const;
 
-  /// Null until the first device connected.
+  /// Null until the first device connected (or a map was loaded).
   std::shared_ptr<ecar::SlamSystem> slam() const;
+  /// The SLAM system, created with `camera` (listeners get onSlamCreated) when
+  /// there is none yet, e.g. to load a map before any device connected. Throws
+  /// ecar::Error when it exists with another camera.
+  std::shared_ptr<ecar::SlamSystem> slamFor(const ecar::PinholeCamera& camera);
   /// Differs on every server start and every map reset.
   uint32_t mapEpoch() const;
 
@@ -101,6 +105,22 @@ class ServerContext {
   bool withMirror(const std::string& name, const std::function<void(ecar::DeviceMirror&)>& f);
   /// Forgets what the device holds (Upload.reset); false when not registered.
   bool resetMirror(const std::string& name);
+  /// Forgets what every device holds (a map was loaded: its ids mean other points).
+  void resetMirrors();
+
+  // ---- map replacement (MapStorage) and the graphs in flight
+  /// A map load begins: until mapReplaced() or mapReplaceFailed(), every
+  /// tracked frame's graph is dropped (mapStale).
+  void beginMapReplace();
+  /// The load finished at `now` (the clock of TrackedFrame.server_received, s).
+  void mapReplaced(double now);
+  /// The load failed: nothing was replaced.
+  void mapReplaceFailed();
+  /// True when a graph for an upload received at `received` (s) must not be
+  /// published: a load is running, or the upload arrived before the last
+  /// load finished (it may have been tracked in the old map, whose ids and
+  /// coordinates the new epoch does not share). Its device gets the next one.
+  bool mapStale(double received) const;
 
   /// Adds a listener and replays the current state to it (onSlamCreated,
   /// onDeviceAdded for each device). The listener must outlive its registration.
@@ -127,6 +147,8 @@ class ServerContext {
   std::map<std::string, Slot> devices_;
   std::map<std::string, ecar::DeviceId> ids_;  ///< every name ever registered
   uint32_t next_id_ = 1;
+  int replacing_ = 0;              ///< loads running
+  double replaced_at_ = -1.0e300;  ///< when the last load finished
 
   std::mutex events_mutex_;  // serialises event delivery; guards listeners_
   std::vector<ContextListener*> listeners_;

@@ -11,14 +11,20 @@
 // for plane updates. The VoStore is opened on the first vos() call.
 #pragma once
 
+#include <atomic>
+#include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
+#include <shared_mutex>
 #include <string>
 #include <vector>
 
 #include "ecar_core/camera.h"
 #include "ecar_core/grid.h"
+#include "ecar_core/map_io.h"
 #include "ecar_core/planes.h"
 #include "ecar_core/vo_store.h"
 #include "ecar_server/config.h"
@@ -40,6 +46,8 @@ struct KeyFrameStructure {
   size_t observations = 0;  ///< planes segmented in the keyframe's points
   size_t cells = 0;         ///< cells linked to the keyframe
   double segment_ms = 0.0, integrate_ms = 0.0, grid_ms = 0.0;
+  /// The input was copied from a map that was replaced since: nothing changed.
+  bool stale = false;
 };
 
 class Structure {
@@ -60,11 +68,33 @@ class Structure {
 
   /// Segments one keyframe's copied points, merges them into the planes,
   /// refreshes the GridPlanes snapshot when the planes changed, and links the
-  /// keyframe to the cells visible from T_w_c (its pose).
+  /// keyframe to the cells visible from T_w_c (its pose). `generation`: the
+  /// generation() read before the input was copied from the SLAM map; when a
+  /// map was loaded since, the input is dropped (result.stale) so that no
+  /// plane of the old map's coordinates enters the new one.
   KeyFrameStructure integrateKeyFrame(const ecar::PlaneKeyFrameInput& input, const ecar::SE3& T_w_c,
-                                      const ecar::GridConnection& grid);
+                                      const ecar::GridConnection& grid,
+                                      std::optional<uint64_t> generation = std::nullopt);
   /// Forgets a keyframe's plane and cell links.
   void eraseKeyFrame(ecar::KeyFrameId id);
+
+  // ---- saving and loading the map (MapStorage)
+  /// Increments each time replace() swapped a loaded map in.
+  uint64_t generation() const { return generation_.load(); }
+  /// Holds every change of the planes and grid (integrateKeyFrame,
+  /// eraseKeyFrame) and visible() off while alive: take it around save() for
+  /// a consistent copy, and around the SLAM map's install and replace() so no
+  /// reader sees half of a load. Blocks until running changes finish.
+  std::unique_lock<std::shared_mutex> lockForReplace();
+  /// Planes, grid links and VOs as a map file stores them (hold lockForReplace()).
+  ecar::StructureState save();
+  /// Swaps decoded structure in (hold lockForReplace()): the VO store first
+  /// (its database rewritten in one transaction; when that throws ecar::Error,
+  /// nothing changed), then `install_slam` (which swaps the SLAM map in), then
+  /// planes and grid links, the GridPlanes snapshot, the per-device visible
+  /// cells (cleared), and last generation() + 1: an integrateKeyFrame input
+  /// copied under the new generation comes from the new SLAM map.
+  void replace(const ecar::StructureState& state, const std::function<void()>& install_slam);
 
   /// Planes and objects for a frame aligned at T_w_c with these local keyframes:
   /// planes hit by the sampled rays (and those of the local keyframes when
@@ -86,6 +116,10 @@ class Structure {
   ecar::PlaneSegmenter segmenter_;
   ecar::PlaneMap planes_;
   ecar::GridMap grid_;
+  /// Shared by integrateKeyFrame/eraseKeyFrame/visible, exclusive around a
+  /// save or a load (lockForReplace). Taken before mutex_, never inside it.
+  std::shared_mutex replace_mutex_;
+  std::atomic<uint64_t> generation_{0};
 
   mutable std::mutex mutex_;  // guards the members below
   std::shared_ptr<const ecar::GridPlanes> grid_planes_;

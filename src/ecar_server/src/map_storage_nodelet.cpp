@@ -1,0 +1,125 @@
+// MapStorage: /ecar/save_map and /ecar/load_map (ecar_msgs/SaveMap, LoadMap)
+// write and read the server's whole map (keyframes, points, planes, grid
+// links, VOs) to one file, and the parameter map_file ("" = none) loads one at
+// startup, so that a session resumes in the same coordinate system. The work
+// is saveServerMap / loadServerMap (map_storage.h); a failure is answered
+// with success = false and a message naming the path and the problem, and the
+// server goes on with the map it had.
+#include <cstdlib>
+#include <memory>
+#include <string>
+
+#include <ecar_msgs/LoadMap.h>
+#include <ecar_msgs/SaveMap.h>
+#include <nodelet/nodelet.h>
+#include <ros/ros.h>
+#include <pluginlib/class_list_macros.hpp>
+
+#include "ecar_core/error.h"
+#include "ecar_server/map_storage.h"
+#include "ecar_server/ros_params.h"
+#include "ecar_server/server_context.h"
+
+namespace ecar_server {
+
+constexpr const char* kSaveMapService = "/ecar/save_map";
+constexpr const char* kLoadMapService = "/ecar/load_map";
+
+class MapStorageNodelet : public nodelet::Nodelet {
+ public:
+  ~MapStorageNodelet() override {
+    save_srv_.shutdown();
+    load_srv_.shutdown();
+  }
+
+ private:
+  void onInit() override {
+    ros::NodeHandle& nh = getMTNodeHandle();
+    ctx_ = ServerContext::get(nh.getNamespace(), loadServerConfig(nh));
+    std::string map_file;
+    nh.param<std::string>("map_file", map_file, "");
+    if (!map_file.empty()) {
+      std::string message;
+      MapCounts counts;
+      if (load(expandHome(map_file), &counts, &message)) {
+        NODELET_INFO("map_file: %s", message.c_str());
+      } else {
+        NODELET_ERROR("map_file: %s; starting with an empty map", message.c_str());
+      }
+    }
+    save_srv_ = nh.advertiseService(kSaveMapService, &MapStorageNodelet::onSave, this);
+    load_srv_ = nh.advertiseService(kLoadMapService, &MapStorageNodelet::onLoad, this);
+    NODELET_INFO("map storage: %s, %s", kSaveMapService, kLoadMapService);
+  }
+
+  bool onSave(ecar_msgs::SaveMap::Request& req, ecar_msgs::SaveMap::Response& res) {
+    const std::string path = expandHome(req.path);
+    try {
+      if (path.empty()) throw ecar::Error("save_map: the path is empty");
+      const MapCounts c = saveServerMap(*ctx_, path);
+      res.success = true;
+      res.keyframes = c.keyframes;
+      res.map_points = c.map_points;
+      res.planes = c.planes;
+      res.objects = c.objects;
+      res.message = "saved " + describe(c) + " to '" + path + "'";
+      NODELET_INFO("%s", res.message.c_str());
+    } catch (const std::exception& e) {
+      res.success = false;
+      res.message = e.what();
+      NODELET_WARN("save_map failed: %s", e.what());
+    }
+    return true;
+  }
+
+  bool onLoad(ecar_msgs::LoadMap::Request& req, ecar_msgs::LoadMap::Response& res) {
+    MapCounts c;
+    res.success = load(expandHome(req.path), &c, &res.message);
+    if (res.success) {
+      res.keyframes = c.keyframes;
+      res.map_points = c.map_points;
+      res.planes = c.planes;
+      res.objects = c.objects;
+      NODELET_INFO("%s", res.message.c_str());
+    } else {
+      NODELET_WARN("load_map failed: %s", res.message.c_str());
+    }
+    return true;
+  }
+
+  // Loads `path`; false with `message` naming the path and the problem.
+  bool load(const std::string& path, MapCounts* counts, std::string* message) {
+    try {
+      if (path.empty()) throw ecar::Error("load_map: the path is empty");
+      *counts = loadServerMap(*ctx_, path, ros::Time::now().toSec());
+      *message = "loaded " + describe(*counts) + " from '" + path + "', map epoch " +
+                 std::to_string(ctx_->mapEpoch());
+      return true;
+    } catch (const std::exception& e) {
+      *message = e.what();
+      return false;
+    }
+  }
+
+  static std::string describe(const MapCounts& c) {
+    char text[200];
+    std::snprintf(text, sizeof(text),
+                  "%u keyframes, %u map points, %u planes, %u objects (%zu bytes, %.0f ms)",
+                  c.keyframes, c.map_points, c.planes, c.objects, c.bytes, c.milliseconds);
+    return text;
+  }
+
+  // "~/x" -> "$HOME/x".
+  static std::string expandHome(const std::string& path) {
+    const char* home = std::getenv("HOME");
+    if (path.size() >= 2 && path[0] == '~' && path[1] == '/' && home) return home + path.substr(1);
+    return path;
+  }
+
+  std::shared_ptr<ServerContext> ctx_;
+  ros::ServiceServer save_srv_, load_srv_;
+};
+
+}  // namespace ecar_server
+
+PLUGINLIB_EXPORT_CLASS(ecar_server::MapStorageNodelet, nodelet::Nodelet)
