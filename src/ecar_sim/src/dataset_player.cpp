@@ -141,6 +141,7 @@ DatasetPlayer::DatasetPlayer(ros::NodeHandle nh, DatasetPlayerConfig config)
   imu_pub_ = nh_.advertise<sensor_msgs::Imu>(topics_.imu(), 2000);
   odom_pub_ = nh_.advertise<geometry_msgs::PoseStamped>(topics_.odometry(), 10);
   finished_pub_ = nh_.advertise<std_msgs::Bool>(topics_.player_finished(), 1, /*latch=*/true);
+  touch_pub_ = nh_.advertise<ecar_msgs::Touch>(topics_.touch(), 100);
   if (config_.pace_by_consumer) {
     frame_done_sub_ = nh_.subscribe(topics_.frame_done(), 10, &DatasetPlayer::onFrameDone, this);
   }
@@ -158,6 +159,10 @@ size_t DatasetPlayer::run() {
       config_.device.c_str(), dataset_.dir().c_str(), ecar::toString(dataset_.format()).c_str(),
       begin, begin + count - 1, dataset_.size(), cam.width, cam.height, cam.fx, config_.rate,
       config_.pace_by_consumer ? ", paced by frame_done" : "", config_.loop ? ", looping" : "");
+  if (!dataset_.touches().empty()) {
+    ROS_INFO("%s: %zu scripted touches on %s", config_.device.c_str(), dataset_.touches().size(),
+             touch_pub_.getTopic().c_str());
+  }
 
   waitForSubscribers();
   const Clock::time_point start = Clock::now();
@@ -214,6 +219,7 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
                why.find(frame.image_path) == std::string::npos
                    ? (frame.image_path + ": " + why).c_str()
                    : why.c_str());
+      warnDroppedTouches(i);
       continue;
     }
 
@@ -229,6 +235,7 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
     } catch (const ecar::Error& e) {  // an image type toImageMsg cannot carry
       ROS_WARN("%s: skipping frame %zu (%s): %s", config_.device.c_str(), i,
                frame.image_path.c_str(), e.what());
+      warnDroppedTouches(i);
       continue;
     }
     ++published;
@@ -246,8 +253,37 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
       anchor_wall_ = Clock::now();
       anchor_t_ = frame.timestamp;
     }
+    // After the consumer's frame_done when paced: the device touches at this frame's pose.
+    publishTouches(i, header);
   }
   return published;
+}
+
+std::pair<size_t, size_t> DatasetPlayer::touchesOf(size_t i) const {
+  const auto& touches = dataset_.touches();
+  const auto by_frame = [](const ecar::TouchEvent& e, size_t frame) { return e.frame < frame; };
+  const auto first = std::lower_bound(touches.begin(), touches.end(), i, by_frame);
+  const auto last = std::lower_bound(first, touches.end(), i + 1, by_frame);
+  return {static_cast<size_t>(first - touches.begin()),
+          static_cast<size_t>(last - touches.begin())};
+}
+
+void DatasetPlayer::publishTouches(size_t i, const std_msgs::Header& image_header) {
+  const auto [first, last] = touchesOf(i);
+  std_msgs::Header header;
+  header.stamp = image_header.stamp;
+  header.frame_id = topics_.camera_frame();
+  for (size_t k = first; k < last; ++k) {
+    touch_pub_.publish(toTouchMsg(dataset_.touches()[k], header));
+  }
+}
+
+void DatasetPlayer::warnDroppedTouches(size_t i) const {
+  const auto [first, last] = touchesOf(i);
+  if (last > first) {
+    ROS_WARN("%s: %zu scripted touch(es) of skipped frame %zu dropped", config_.device.c_str(),
+             last - first, i);
+  }
 }
 
 std_msgs::Header DatasetPlayer::publishFrame(size_t i, const cv::Mat& image) {
