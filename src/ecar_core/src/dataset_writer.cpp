@@ -1,5 +1,6 @@
 #include "ecar_core/dataset_writer.h"
 
+#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -55,6 +56,13 @@ std::string poseLine(const std::string& stamp, const SE3& T) {
   std::snprintf(buf, sizeof(buf), "%s %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", stamp.c_str(),
                 t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
   return buf;
+}
+
+// The shortest text that reads back as exactly `v` (locale independent).
+std::string shortest(double v) {
+  char buf[64];
+  const auto [end, ec] = std::to_chars(buf, buf + sizeof(buf), v);
+  return ec == std::errc() ? std::string(buf, end) : std::string("nan");
 }
 
 void writeOrThrow(std::ofstream& stream, const std::string& text, const fs::path& file) {
@@ -185,10 +193,11 @@ void DatasetWriter::addTouch(const TouchEvent& e) {
     throw Error(what + ": phase " + toString(e.phase) +
                 (open ? " inside a stroke" : " without a begin before"));
   }
-  char buf[256];
-  std::snprintf(buf, sizeof(buf), "%s %zu %.17g %.17g %s %d %d %d %.17g\n", stamp.c_str(), e.frame,
-                e.uv.x(), e.uv.y(), toString(e.phase), e.r, e.g, e.b, e.width);
-  writeOrThrow(openLazily(touches_, "touches.txt", kTouchesHeader), buf,
+  const std::string line = stamp + " " + std::to_string(e.frame) + " " + shortest(e.uv.x()) + " " +
+                           shortest(e.uv.y()) + " " + toString(e.phase) + " " +
+                           std::to_string(e.r) + " " + std::to_string(e.g) + " " +
+                           std::to_string(e.b) + " " + shortest(e.width) + "\n";
+  writeOrThrow(openLazily(touches_, "touches.txt", kTouchesHeader), line,
                fs::path(dir_) / "touches.txt");
   last_touch_ = e;
   ++touch_count_;

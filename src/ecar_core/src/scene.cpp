@@ -240,7 +240,10 @@ void readStrokeStyle(const Reader& r, TouchScriptItem* item) {
   item->width = r.getPositive("width", item->width);
 }
 
-TouchScriptItem readTouchEvent(const Reader& r, const PinholeCamera& camera) {
+// `open_stroke`: the BEGIN of the stroke in progress, if any; a MOVE or END
+// takes its colour and width unless it gives its own.
+TouchScriptItem readTouchEvent(const Reader& r, const PinholeCamera& camera,
+                               const TouchScriptItem* open_stroke) {
   r.allowOnly({"frame", "phase", "pixel", "at", "color", "width"});
   TouchScriptItem item;
   item.start_frame = item.end_frame = readFrame(r, "frame");
@@ -254,6 +257,12 @@ TouchScriptItem readTouchEvent(const Reader& r, const PinholeCamera& camera) {
     item.from_w = item.to_w = r.getPoint("at");
   } else {
     item.from_uv = item.to_uv = readPixel(r, "pixel", camera);
+  }
+  if (open_stroke && item.phase != TouchPhase::kBegin) {
+    item.r = open_stroke->r;
+    item.g = open_stroke->g;
+    item.b = open_stroke->b;
+    item.width = open_stroke->width;
   }
   readStrokeStyle(r, &item);
   return item;
@@ -289,7 +298,8 @@ std::vector<TouchScriptItem> readTouches(const Reader& r, const PinholeCamera& c
   const YAML::Node list = r.node("touches");
   if (!list.IsSequence()) r.fail("key 'touches' must be a list");
   std::vector<TouchScriptItem> items;
-  std::optional<size_t> open;  // the item whose BEGIN started the stroke in progress
+  bool open = false;     // a BEGIN event started a stroke that has not ended yet
+  size_t open_item = 0;  // that BEGIN's item
   for (size_t k = 0; k < list.size(); ++k) {
     const std::string ctx = r.join("touches") + "[" + std::to_string(k) + "]";
     const Reader item_reader(list[k], r.file(), ctx);
@@ -298,7 +308,7 @@ std::vector<TouchScriptItem> readTouches(const Reader& r, const PinholeCamera& c
       item_reader.allowOnly({"stroke"});
       item = readTouchStroke(item_reader.child("stroke"), camera);
     } else {
-      item = readTouchEvent(item_reader, camera);
+      item = readTouchEvent(item_reader, camera, open ? &items[open_item] : nullptr);
     }
     if (!items.empty() && item.start_frame <= items.back().end_frame) {
       item_reader.fail("frame " + std::to_string(item.start_frame) +
@@ -306,7 +316,7 @@ std::vector<TouchScriptItem> readTouches(const Reader& r, const PinholeCamera& c
                        std::to_string(items.back().end_frame) + ")");
     }
     const std::string open_at =
-        open ? r.join("touches") + "[" + std::to_string(*open) + "]" : std::string();
+        open ? r.join("touches") + "[" + std::to_string(open_item) + "]" : std::string();
     if (item.stroke && open) {
       item_reader.fail("a stroke cannot start inside the stroke begun at " + open_at);
     }
@@ -317,13 +327,16 @@ std::vector<TouchScriptItem> readTouches(const Reader& r, const PinholeCamera& c
       if (item.phase != TouchPhase::kBegin && !open) {
         item_reader.fail(std::string("'") + toString(item.phase) + "' without a 'begin' before");
       }
-      if (item.phase == TouchPhase::kBegin) open = k;
-      if (item.phase == TouchPhase::kEnd) open.reset();
+      if (item.phase == TouchPhase::kBegin) {
+        open = true;
+        open_item = k;
+      }
+      if (item.phase == TouchPhase::kEnd) open = false;
     }
     items.push_back(item);
   }
   if (open) {
-    r.fail("touches[" + std::to_string(*open) + "]: the stroke begun here has no 'end'");
+    r.fail("touches[" + std::to_string(open_item) + "]: the stroke begun here has no 'end'");
   }
   return items;
 }

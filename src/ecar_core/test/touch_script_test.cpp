@@ -52,7 +52,7 @@ TEST_F(TouchScriptTest, ParsesEventsAndStrokes) {
   const Scene scene = load(
       "      - {frame: 2, phase: begin, pixel: [10, 20], color: [0, 255, 7], width: 0.05}\n"
       "      - {frame: 4, phase: move, at: [2, 1.5, 0]}\n"
-      "      - {frame: 5, phase: end, pixel: [12.5, 22]}\n"
+      "      - {frame: 5, phase: end, pixel: [12.5, 22], width: 0.04}\n"
       "      - stroke: {start_frame: 8, end_frame: 12, from_pixel: [10, 10], to_pixel: [50, 30]}\n"
       "      - stroke: {start_frame: 14, end_frame: 16, from: [3, 1, 0], to: [3.5, 1, 0],\n"
       "                 color: [1, 2, 3], width: 0.01}\n");
@@ -72,12 +72,18 @@ TEST_F(TouchScriptTest, ParsesEventsAndStrokes) {
   EXPECT_EQ(t[1].phase, TouchPhase::kMove);
   EXPECT_TRUE(t[1].in_world);
   EXPECT_EQ(t[1].from_w, Eigen::Vector3d(2, 1.5, 0));
-  // Defaults.
-  EXPECT_EQ(t[1].r, 255);
-  EXPECT_EQ(t[1].g, 64);
-  EXPECT_EQ(t[1].b, 32);
-  EXPECT_DOUBLE_EQ(t[1].width, 0.03);
+  // A move or end without colour and width takes its begin's.
+  EXPECT_EQ(t[1].g, 255);
+  EXPECT_EQ(t[1].b, 7);
+  EXPECT_DOUBLE_EQ(t[1].width, 0.05);
   EXPECT_EQ(t[2].phase, TouchPhase::kEnd);
+  EXPECT_EQ(t[2].b, 7);
+  EXPECT_DOUBLE_EQ(t[2].width, 0.04);  // its own
+  // Defaults.
+  EXPECT_EQ(t[3].r, 255);
+  EXPECT_EQ(t[3].g, 64);
+  EXPECT_EQ(t[3].b, 32);
+  EXPECT_DOUBLE_EQ(t[3].width, 0.03);
   EXPECT_TRUE(t[3].stroke);
   EXPECT_EQ(t[3].start_frame, 8);
   EXPECT_EQ(t[3].end_frame, 12);

@@ -240,6 +240,7 @@ class TouchReplayTest(unittest.TestCase):
         self.assertEqual((touches[0].r, touches[0].g, touches[0].b), (0, 255, 0))
         self.assertAlmostEqual(touches[0].width, 0.05, places=6)
         self.assertEqual((touches[1].u, touches[1].v), (50.0, 91.0))
+        self.assertEqual((touches[2].r, touches[2].g, touches[2].b), (0, 255, 0))  # its begin's
         self.assertEqual((touches[3].r, touches[3].g, touches[3].b), (255, 64, 32))
 
 

@@ -92,8 +92,10 @@ struct TouchScriptItem {
   Eigen::Vector3d to_w = Eigen::Vector3d::Zero();     ///< world point, m (event: = from_w)
   Eigen::Vector2d from_uv = Eigen::Vector2d::Zero();  ///< pixel (event: `pixel`)
   Eigen::Vector2d to_uv = Eigen::Vector2d::Zero();    ///< pixel (event: = from_uv)
-  uint8_t r = 255, g = 64, b = 32;                    ///< `color: [r, g, b]`, 0-255
-  double width = 0.03;                                ///< `width`, stroke width in metres, > 0
+  /// `color: [r, g, b]`, 0-255. Default [255, 64, 32]; a `move` or `end`
+  /// event without one takes its stroke's `begin`'s (so does `width`).
+  uint8_t r = 255, g = 64, b = 32;
+  double width = 0.03;  ///< `width`, stroke width in metres, > 0 (default 0.03)
 };
 
 struct DeviceSpec {
