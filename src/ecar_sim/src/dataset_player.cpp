@@ -91,6 +91,7 @@ void DatasetPlayerConfig::validate() const {
   if (!std::isfinite(wait_subscribers) || wait_subscribers < 0.0) {
     fail("wait_subscribers", "must be >= 0 s");
   }
+  if (!std::isfinite(touch_settle) || touch_settle < 0.0) fail("touch_settle", "must be >= 0 s");
   if (first_frame < 0) fail("first_frame", "must be >= 0");
   if (max_frames < 0) fail("max_frames", "must be >= 0 (0 = all frames)");
 }
@@ -115,6 +116,7 @@ DatasetPlayerConfig loadDatasetPlayerConfig(const ros::NodeHandle& pnh) {
   readParam(pnh, "ack_timeout", "a number", &c.ack_timeout);
   readParam(pnh, "start_delay", "a number", &c.start_delay);
   readParam(pnh, "wait_subscribers", "a number", &c.wait_subscribers);
+  readParam(pnh, "touch_settle", "a number", &c.touch_settle);
   readParam(pnh, "first_frame", "an integer", &c.first_frame);
   readParam(pnh, "max_frames", "an integer", &c.max_frames);
   readParam(pnh, "loop", "a bool", &c.loop);
@@ -254,7 +256,11 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
       anchor_t_ = frame.timestamp;
     }
     // After the consumer's frame_done when paced: the device touches at this frame's pose.
-    publishTouches(i, header);
+    if (publishTouches(i, header) > 0 && config_.pace_by_consumer && config_.touch_settle > 0.0) {
+      const auto settle = std::chrono::duration<double>(config_.touch_settle);
+      if (!sleepUntil(Clock::now() + std::chrono::duration_cast<Clock::duration>(settle))) break;
+      anchor_wall_ = Clock::now();
+    }
   }
   return published;
 }
@@ -268,7 +274,7 @@ std::pair<size_t, size_t> DatasetPlayer::touchesOf(size_t i) const {
           static_cast<size_t>(last - touches.begin())};
 }
 
-void DatasetPlayer::publishTouches(size_t i, const std_msgs::Header& image_header) {
+size_t DatasetPlayer::publishTouches(size_t i, const std_msgs::Header& image_header) {
   const auto [first, last] = touchesOf(i);
   std_msgs::Header header;
   header.stamp = image_header.stamp;
@@ -276,6 +282,7 @@ void DatasetPlayer::publishTouches(size_t i, const std_msgs::Header& image_heade
   for (size_t k = first; k < last; ++k) {
     touch_pub_.publish(toTouchMsg(dataset_.touches()[k], header));
   }
+  return last - first;
 }
 
 void DatasetPlayer::warnDroppedTouches(size_t i) const {
