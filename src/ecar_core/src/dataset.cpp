@@ -634,6 +634,75 @@ Contents loadEuroc(const fs::path& dir, bool need_camera) {
   return c;
 }
 
+// ---------------------------------------------------------------------------
+// touches.txt (any format): `timestamp frame_index u v phase r g b width`.
+
+// Parses the whole of `s` as an integer in [lo, hi].
+long parseInteger(const std::string& s, long lo, long hi, const fs::path& file, int line,
+                  const std::string& what) {
+  long v = 0;
+  const char* end = s.data() + s.size();
+  const auto [ptr, ec] = std::from_chars(s.data(), end, v);
+  if (s.empty() || ec != std::errc() || ptr != end || v < lo || v > hi) {
+    throw Error(at(file, line) + ": " + what + " '" + s + "' is not an integer in [" +
+                std::to_string(lo) + ", " + std::to_string(hi) + "]");
+  }
+  return v;
+}
+
+// Reads touches.txt: frame indices into `frames`, stamps equal to the frame's
+// (to 1 us), pixels inside the image, events in frame order forming whole strokes.
+std::vector<TouchEvent> readTouches(const fs::path& file, const std::vector<DatasetFrame>& frames,
+                                    const PinholeCamera& camera) {
+  constexpr double kStampTolerance = 1e-6;  // stamps are written with 6 decimals
+  const std::string layout = "timestamp frame_index u v phase r g b width";
+  std::vector<TouchEvent> events;
+  std::vector<int> numbers;
+  for (const TextLine& line : readTextLines(file, false)) {
+    expectFields(line, 9, file, layout);
+    const std::string where = at(file, line.number);
+    TouchEvent e;
+    e.timestamp = parseNumber(line.fields[0], file, line.number, "timestamp");
+    e.frame = static_cast<size_t>(parseInteger(
+        line.fields[1], 0, static_cast<long>(frames.size()) - 1, file, line.number, "frame_index"));
+    if (std::abs(e.timestamp - frames[e.frame].timestamp) > kStampTolerance) {
+      throw Error(where + ": timestamp " + line.fields[0] + " is not the stamp of frame " +
+                  line.fields[1] + " (" + std::to_string(frames[e.frame].timestamp) + ")");
+    }
+    if (!events.empty() && e.frame < events.back().frame) {
+      throw Error(where + ": frame_index " + line.fields[1] + " is before the previous line's (" +
+                  std::to_string(events.back().frame) + ")");
+    }
+    e.uv = Eigen::Vector2d(parseNumber(line.fields[2], file, line.number, "u"),
+                           parseNumber(line.fields[3], file, line.number, "v"));
+    if (!camera.inImage(e.uv)) {
+      throw Error(where + ": pixel (" + line.fields[2] + ", " + line.fields[3] +
+                  ") is outside the " + std::to_string(camera.width()) + "x" +
+                  std::to_string(camera.height()) + " image");
+    }
+    const auto phase = parseTouchPhase(line.fields[4]);
+    if (!phase) {
+      throw Error(where + ": phase '" + line.fields[4] + "' is not begin, move or end");
+    }
+    e.phase = *phase;
+    e.r = static_cast<uint8_t>(parseInteger(line.fields[5], 0, 255, file, line.number, "r"));
+    e.g = static_cast<uint8_t>(parseInteger(line.fields[6], 0, 255, file, line.number, "g"));
+    e.b = static_cast<uint8_t>(parseInteger(line.fields[7], 0, 255, file, line.number, "b"));
+    e.width = parseNumber(line.fields[8], file, line.number, "width");
+    if (!(e.width > 0)) throw Error(where + ": width " + line.fields[8] + " must be > 0");
+    events.push_back(e);
+    numbers.push_back(line.number);
+  }
+  const auto bad = firstIllFormedTouch(events, [](const TouchEvent& e) { return e.phase; });
+  if (bad && *bad < events.size()) {
+    throw Error(at(file, numbers[*bad]) + ": phase '" + toString(events[*bad].phase) + "' " +
+                (events[*bad].phase == TouchPhase::kBegin ? "inside a stroke (no 'end' before)"
+                                                          : "without a 'begin' before"));
+  }
+  if (bad) throw Error(file.string() + ": the last stroke has no 'end'");
+  return events;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------
@@ -720,6 +789,8 @@ Dataset Dataset::open(const std::string& dir_str, DatasetFormat format,
   d.frames_ = std::move(c.frames);
   d.sources_ = std::move(c.sources);
   d.imu_ = std::move(c.imu);
+  const fs::path touches = clean / "touches.txt";
+  if (isFile(touches)) d.touches_ = readTouches(touches, d.frames_, d.camera_);
   return d;
 }
 

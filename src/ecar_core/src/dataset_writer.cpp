@@ -1,7 +1,9 @@
 #include "ecar_core/dataset_writer.h"
 
+#include <charconv>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <vector>
 
@@ -32,6 +34,10 @@ constexpr char kImuHeader[] =
     "# imu: camera optical frame (x right, y down, z forward); specific force in m/s^2\n"
     "# (reads +g up at rest), angular rate in rad/s\n"
     "# timestamp ax ay az wx wy wz\n";
+constexpr char kTouchesHeader[] =
+    "# scripted touches: the frame's stamp and 0-based index in rgb.txt, the pixel\n"
+    "# (column, row, origin top-left), phase begin|move|end, colour 0-255, width in metres\n"
+    "# timestamp frame_index u v phase r g b width\n";
 constexpr char kGravityHeader[] =
     "# gravity: accelerometer at rest in the camera optical frame, m/s^2, points up\n"
     "# timestamp gx gy gz\n";
@@ -50,6 +56,13 @@ std::string poseLine(const std::string& stamp, const SE3& T) {
   std::snprintf(buf, sizeof(buf), "%s %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", stamp.c_str(),
                 t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
   return buf;
+}
+
+// The shortest text that reads back as exactly `v` (locale independent).
+std::string shortest(double v) {
+  char buf[64];
+  const auto [end, ec] = std::to_chars(buf, buf + sizeof(buf), v);
+  return ec == std::errc() ? std::string(buf, end) : std::string("nan");
 }
 
 void writeOrThrow(std::ofstream& stream, const std::string& text, const fs::path& file) {
@@ -77,6 +90,7 @@ DatasetWriter::DatasetWriter(const std::string& dir, const PinholeCamera& camera
   // with this run's frames: remove them.
   fs::remove(fs::path(dir) / "gravity.txt", ec);
   fs::remove(fs::path(dir) / "odometry.txt", ec);
+  fs::remove(fs::path(dir) / "touches.txt", ec);
 }
 
 DatasetWriter::~DatasetWriter() {
@@ -151,8 +165,42 @@ void DatasetWriter::addFrame(double timestamp, const cv::Mat& image, const SE3& 
     writeOrThrow(openLazily(odometry_, "odometry.txt", kOdometryHeader),
                  poseLine(stamp, *T_o_c_odom), fs::path(dir_) / "odometry.txt");
   }
+  frame_stamps_.emplace_back(us, stamp);
   last_frame_us_ = us;
   ++frame_count_;
+}
+
+void DatasetWriter::addTouch(const TouchEvent& e) {
+  checkOpen();
+  const std::string what = dir_ + ": touch on frame " + std::to_string(e.frame);
+  if (e.frame >= frame_count_) {
+    throw Error(what + ": no such frame yet (" + std::to_string(frame_count_) + " added)");
+  }
+  if (last_touch_ && e.frame < last_touch_->frame) {
+    throw Error(what + ": before the previous touch's frame " + std::to_string(last_touch_->frame));
+  }
+  const auto& [frame_us, stamp] = frame_stamps_[e.frame];
+  if (!std::isfinite(e.timestamp) || std::llabs(std::llround(e.timestamp * 1e6) - frame_us) > 1) {
+    throw Error(what + ": timestamp " + stampText(e.timestamp) + " is not the frame's (" + stamp +
+                ")");
+  }
+  if (!e.uv.allFinite() || !camera_.inImage(e.uv)) {
+    throw Error(what + ": pixel is not finite or outside the image");
+  }
+  if (!std::isfinite(e.width) || !(e.width > 0)) throw Error(what + ": width must be > 0");
+  const bool open = last_touch_ && last_touch_->phase != TouchPhase::kEnd;
+  if ((e.phase == TouchPhase::kBegin) == open) {
+    throw Error(what + ": phase " + toString(e.phase) +
+                (open ? " inside a stroke" : " without a begin before"));
+  }
+  const std::string line = stamp + " " + std::to_string(e.frame) + " " + shortest(e.uv.x()) + " " +
+                           shortest(e.uv.y()) + " " + toString(e.phase) + " " +
+                           std::to_string(e.r) + " " + std::to_string(e.g) + " " +
+                           std::to_string(e.b) + " " + shortest(e.width) + "\n";
+  writeOrThrow(openLazily(touches_, "touches.txt", kTouchesHeader), line,
+               fs::path(dir_) / "touches.txt");
+  last_touch_ = e;
+  ++touch_count_;
 }
 
 void DatasetWriter::addImu(const ImuSample& s) {
@@ -176,14 +224,14 @@ void DatasetWriter::addImu(const ImuSample& s) {
 void DatasetWriter::finish() {
   if (finished_) return;
   finished_ = true;
+  std::string failed;
+  if (last_touch_ && last_touch_->phase != TouchPhase::kEnd) {
+    failed = "touches.txt (the last stroke has no end)";
+  }
   camera_.saveYaml((fs::path(dir_) / "camera.yaml").string());
   const std::vector<std::pair<std::ofstream*, const char*>> files = {
-      {&rgb_, "rgb.txt"},
-      {&groundtruth_, "groundtruth.txt"},
-      {&imu_, "imu.txt"},
-      {&gravity_, "gravity.txt"},
-      {&odometry_, "odometry.txt"}};
-  std::string failed;
+      {&rgb_, "rgb.txt"},         {&groundtruth_, "groundtruth.txt"}, {&imu_, "imu.txt"},
+      {&gravity_, "gravity.txt"}, {&odometry_, "odometry.txt"},       {&touches_, "touches.txt"}};
   for (const auto& [stream, name] : files) {
     if (!stream->is_open()) continue;
     stream->close();

@@ -1,6 +1,7 @@
 #include "ecar_core/scene.h"
 
 #include <cmath>
+#include <optional>
 #include <set>
 
 #include <yaml-cpp/yaml.h>
@@ -204,8 +205,144 @@ TrajectorySpec readTrajectory(const Reader& r) {
   return t;
 }
 
-DeviceSpec readDevice(const Reader& r, size_t index) {
-  r.allowOnly({"name", "seed", "trajectory", "odometry"});
+// A frame number: a non-negative integer.
+int readFrame(const Reader& r, const std::string& key) {
+  const int frame = r.get<int>(key);
+  if (frame < 0) r.fail("key '" + key + "' must be a frame number >= 0");
+  return frame;
+}
+
+// A pixel [u, v] inside the image.
+Eigen::Vector2d readPixel(const Reader& r, const std::string& key, const PinholeCamera& camera) {
+  const auto v = r.get<std::vector<double>>(key);
+  if (v.size() != 2) r.fail("key '" + key + "' must be [u, v]");
+  const Eigen::Vector2d uv(v[0], v[1]);
+  if (!uv.allFinite()) r.fail("key '" + key + "' has a non-finite coordinate");
+  if (!camera.inImage(uv)) {
+    r.fail("key '" + key + "' is outside the " + std::to_string(camera.width()) + "x" +
+           std::to_string(camera.height()) + " image");
+  }
+  return uv;
+}
+
+// `color` and `width`, shared by events and strokes.
+void readStrokeStyle(const Reader& r, TouchScriptItem* item) {
+  if (r.has("color")) {
+    const auto c = r.get<std::vector<int>>("color");
+    if (c.size() != 3) r.fail("key 'color' must be [r, g, b]");
+    for (int x : c) {
+      if (x < 0 || x > 255) r.fail("key 'color' must hold integers 0-255");
+    }
+    item->r = static_cast<uint8_t>(c[0]);
+    item->g = static_cast<uint8_t>(c[1]);
+    item->b = static_cast<uint8_t>(c[2]);
+  }
+  item->width = r.getPositive("width", item->width);
+}
+
+// `open_stroke`: the BEGIN of the stroke in progress, if any; a MOVE or END
+// takes its colour and width unless it gives its own.
+TouchScriptItem readTouchEvent(const Reader& r, const PinholeCamera& camera,
+                               const TouchScriptItem* open_stroke) {
+  r.allowOnly({"frame", "phase", "pixel", "at", "color", "width"});
+  TouchScriptItem item;
+  item.start_frame = item.end_frame = readFrame(r, "frame");
+  const auto phase_name = r.get<std::string>("phase");
+  const auto phase = parseTouchPhase(phase_name);
+  if (!phase) r.fail("key 'phase' must be begin, move or end (got '" + phase_name + "')");
+  item.phase = *phase;
+  if (r.has("pixel") == r.has("at")) r.fail("needs exactly one of 'pixel' and 'at'");
+  item.in_world = r.has("at");
+  if (item.in_world) {
+    item.from_w = item.to_w = r.getPoint("at");
+  } else {
+    item.from_uv = item.to_uv = readPixel(r, "pixel", camera);
+  }
+  if (open_stroke && item.phase != TouchPhase::kBegin) {
+    item.r = open_stroke->r;
+    item.g = open_stroke->g;
+    item.b = open_stroke->b;
+    item.width = open_stroke->width;
+  }
+  readStrokeStyle(r, &item);
+  return item;
+}
+
+TouchScriptItem readTouchStroke(const Reader& r, const PinholeCamera& camera) {
+  r.allowOnly(
+      {"start_frame", "end_frame", "from", "to", "from_pixel", "to_pixel", "color", "width"});
+  TouchScriptItem item;
+  item.stroke = true;
+  item.start_frame = readFrame(r, "start_frame");
+  item.end_frame = readFrame(r, "end_frame");
+  if (item.end_frame <= item.start_frame) r.fail("'end_frame' must be after 'start_frame'");
+  const bool world = r.has("from") || r.has("to");
+  const bool pixels = r.has("from_pixel") || r.has("to_pixel");
+  if (world == pixels) r.fail("needs either 'from' and 'to' or 'from_pixel' and 'to_pixel'");
+  item.in_world = world;
+  if (world) {
+    item.from_w = r.getPoint("from");
+    item.to_w = r.getPoint("to");
+  } else {
+    item.from_uv = readPixel(r, "from_pixel", camera);
+    item.to_uv = readPixel(r, "to_pixel", camera);
+  }
+  readStrokeStyle(r, &item);
+  return item;
+}
+
+// A device's `touches:` list. Frames strictly increase from item to item (one
+// finger: no two events on one frame, strokes never overlap) and the phases
+// form whole strokes.
+std::vector<TouchScriptItem> readTouches(const Reader& r, const PinholeCamera& camera) {
+  const YAML::Node list = r.node("touches");
+  if (!list.IsSequence()) r.fail("key 'touches' must be a list");
+  std::vector<TouchScriptItem> items;
+  bool open = false;     // a BEGIN event started a stroke that has not ended yet
+  size_t open_item = 0;  // that BEGIN's item
+  for (size_t k = 0; k < list.size(); ++k) {
+    const std::string ctx = r.join("touches") + "[" + std::to_string(k) + "]";
+    const Reader item_reader(list[k], r.file(), ctx);
+    TouchScriptItem item;
+    if (item_reader.has("stroke")) {
+      item_reader.allowOnly({"stroke"});
+      item = readTouchStroke(item_reader.child("stroke"), camera);
+    } else {
+      item = readTouchEvent(item_reader, camera, open ? &items[open_item] : nullptr);
+    }
+    if (!items.empty() && item.start_frame <= items.back().end_frame) {
+      item_reader.fail("frame " + std::to_string(item.start_frame) +
+                       " must be after the previous item's (" +
+                       std::to_string(items.back().end_frame) + ")");
+    }
+    const std::string open_at =
+        open ? r.join("touches") + "[" + std::to_string(open_item) + "]" : std::string();
+    if (item.stroke && open) {
+      item_reader.fail("a stroke cannot start inside the stroke begun at " + open_at);
+    }
+    if (!item.stroke) {
+      if (item.phase == TouchPhase::kBegin && open) {
+        item_reader.fail("'begin' inside the stroke begun at " + open_at + " (no 'end' before)");
+      }
+      if (item.phase != TouchPhase::kBegin && !open) {
+        item_reader.fail(std::string("'") + toString(item.phase) + "' without a 'begin' before");
+      }
+      if (item.phase == TouchPhase::kBegin) {
+        open = true;
+        open_item = k;
+      }
+      if (item.phase == TouchPhase::kEnd) open = false;
+    }
+    items.push_back(item);
+  }
+  if (open) {
+    r.fail("touches[" + std::to_string(open_item) + "]: the stroke begun here has no 'end'");
+  }
+  return items;
+}
+
+DeviceSpec readDevice(const Reader& r, size_t index, const PinholeCamera& camera) {
+  r.allowOnly({"name", "seed", "trajectory", "odometry", "touches"});
   DeviceSpec d;
   d.name = r.get<std::string>("name");
   if (d.name.empty()) r.fail("key 'name' must not be empty");
@@ -223,6 +360,7 @@ DeviceSpec readDevice(const Reader& r, size_t index) {
     d.odometry.position_walk = o.getFinite("position_walk", d.odometry.position_walk);
     d.odometry.yaw_walk_deg = o.getFinite("yaw_walk_deg", d.odometry.yaw_walk_deg);
   }
+  if (r.has("touches")) d.touches = readTouches(r, camera);
   return d;
 }
 
@@ -268,8 +406,9 @@ Scene loadScene(const std::string& path) {
   scene.path = path;
   scene.name = r.get<std::string>("name");
   scene.camera = readCamera(r.child("camera"));
+  std::optional<PinholeCamera> camera;
   try {
-    PinholeCamera check(scene.camera);
+    camera.emplace(scene.camera);
   } catch (const Error& e) {
     r.fail(std::string("camera: ") + e.what());
   }
@@ -298,12 +437,85 @@ Scene loadScene(const std::string& path) {
     std::set<std::string> names;
     for (size_t i = 0; i < devices.size(); ++i) {
       const std::string ctx = "devices[" + std::to_string(i) + "]";
-      DeviceSpec d = readDevice(Reader(devices[i], path, ctx), i);
+      DeviceSpec d = readDevice(Reader(devices[i], path, ctx), i, *camera);
       if (!names.insert(d.name).second) r.fail(ctx + ": duplicate device name '" + d.name + "'");
       scene.devices.push_back(std::move(d));
     }
   }
   return scene;
+}
+
+}  // namespace ecar
+
+namespace ecar {
+
+std::vector<TouchEvent> scriptTouches(const Scene& scene, const DeviceSpec& device,
+                                      const Trajectory& frames, size_t total_frames) {
+  const PinholeCamera camera(scene.camera);
+  const std::string who = scene.path + ": device '" + device.name + "': touches[";
+  std::vector<TouchEvent> events;
+  for (size_t k = 0; k < device.touches.size(); ++k) {
+    const TouchScriptItem& item = device.touches[k];
+    const std::string where = who + std::to_string(k) + "]";
+    if (static_cast<size_t>(item.end_frame) >= total_frames) {
+      throw Error(where + ": frame " + std::to_string(item.end_frame) +
+                  " is past the device's last frame (" + std::to_string(total_frames - 1) + ")");
+    }
+    for (int f = item.start_frame; f <= item.end_frame; ++f) {
+      if (static_cast<size_t>(f) >= frames.size()) break;
+      // Linear interpolation along the stroke (an event has from = to).
+      const double s = item.stroke ? static_cast<double>(f - item.start_frame) /
+                                         (item.end_frame - item.start_frame)
+                                   : 0.0;
+      TouchEvent e;
+      e.timestamp = frames[f].timestamp;
+      e.frame = static_cast<size_t>(f);
+      e.phase = !item.stroke            ? item.phase
+                : f == item.start_frame ? TouchPhase::kBegin
+                : f == item.end_frame   ? TouchPhase::kEnd
+                                        : TouchPhase::kMove;
+      e.r = item.r;
+      e.g = item.g;
+      e.b = item.b;
+      e.width = item.width;
+      if (item.in_world) {
+        const Eigen::Vector3d p_w = (1.0 - s) * item.from_w + s * item.to_w;
+        const Eigen::Vector3d p_c = frames[f].T_w_c.inverse() * p_w;
+        const std::string point = "frame " + std::to_string(f) + ": world point (" +
+                                  std::to_string(p_w.x()) + ", " + std::to_string(p_w.y()) + ", " +
+                                  std::to_string(p_w.z()) + ")";
+        const std::optional<Eigen::Vector2d> uv = camera.project(p_c);
+        if (!uv) throw Error(where + ": " + point + " is behind the camera");
+        if (!camera.inImage(*uv)) {
+          throw Error(where + ": " + point + " projects to pixel (" + std::to_string(uv->x()) +
+                      ", " + std::to_string(uv->y()) + "), outside the " +
+                      std::to_string(camera.width()) + "x" + std::to_string(camera.height()) +
+                      " image");
+        }
+        e.uv = *uv;
+      } else {
+        e.uv = (1.0 - s) * item.from_uv + s * item.to_uv;
+      }
+      events.push_back(e);
+    }
+  }
+  // A prefix of the trajectory can cut the last stroke: end it on the last frame.
+  const bool open = !events.empty() && events.back().phase != TouchPhase::kEnd;
+  if (open) {
+    TouchEvent& last = events.back();
+    if (last.phase == TouchPhase::kMove && last.frame + 1 == frames.size()) {
+      last.phase = TouchPhase::kEnd;
+    } else if (last.phase == TouchPhase::kBegin && last.frame + 1 == frames.size()) {
+      events.pop_back();
+    } else {
+      TouchEvent end = last;
+      end.frame = frames.size() - 1;
+      end.timestamp = frames.back().timestamp;
+      end.phase = TouchPhase::kEnd;
+      events.push_back(end);
+    }
+  }
+  return events;
 }
 
 }  // namespace ecar

@@ -648,5 +648,137 @@ TEST_F(DatasetBadInputTest, BadCameraFile) {
   EXPECT_CONTAINS(errorOf([&] { Dataset::open(dir_, DatasetFormat::kSim, missing); }), missing);
 }
 
+// ---------------------------------------------------------------------------
+// touches.txt
+
+TouchEvent touchOn(const std::vector<SyntheticFrame>& frames, size_t frame, TouchPhase phase,
+                   double u, double v) {
+  TouchEvent e;
+  e.frame = frame;
+  e.timestamp = frames[frame].timestamp;
+  e.phase = phase;
+  e.uv = Eigen::Vector2d(u, v);
+  return e;
+}
+
+TEST(DatasetTouchesTest, WriterAndReaderRoundTrip) {
+  TempDir tmp;
+  const PinholeCamera cam = smallCamera();
+  const auto frames = syntheticFrames(cam, 5);
+  const std::string dir = tmp.file("sim");
+  std::vector<TouchEvent> touches = {
+      touchOn(frames, 0, TouchPhase::kBegin, 1.0 / 3.0, 47.25),
+      touchOn(frames, 1, TouchPhase::kMove, 2.5, 40.0),
+      touchOn(frames, 2, TouchPhase::kEnd, 63.49, -0.5),
+      touchOn(frames, 2, TouchPhase::kBegin, 10, 10),  // two events on one frame
+      touchOn(frames, 4, TouchPhase::kEnd, 11, 12),
+  };
+  touches[1].r = 0;
+  touches[1].g = 128;
+  touches[1].b = 255;
+  touches[1].width = 0.1 / 3.0;
+  {
+    DatasetWriter writer(dir, cam);
+    for (size_t i = 0; i < frames.size(); ++i) {
+      writer.addFrame(frames[i].timestamp, frames[i].image, frames[i].T_w_c);
+      for (const TouchEvent& e : touches) {
+        if (e.frame == i) writer.addTouch(e);
+      }
+    }
+    EXPECT_EQ(writer.touchCount(), touches.size());
+    writer.finish();
+  }
+  const std::string text = readText(dir + "/touches.txt");
+  EXPECT_EQ(text.rfind("# scripted touches", 0), 0u) << text;
+  EXPECT_CONTAINS(text, "# timestamp frame_index u v phase r g b width\n");
+  EXPECT_CONTAINS(text, "1000.033333 1 2.5 40 move 0 128 255 ");
+
+  const Dataset ds = Dataset::open(dir);
+  ASSERT_EQ(ds.touches().size(), touches.size());
+  for (size_t k = 0; k < touches.size(); ++k) {
+    SCOPED_TRACE("touch " + std::to_string(k));
+    const TouchEvent& got = ds.touches()[k];
+    const TouchEvent& want = touches[k];
+    EXPECT_EQ(got.frame, want.frame);
+    EXPECT_DOUBLE_EQ(got.timestamp, ds.frame(want.frame).timestamp);
+    EXPECT_EQ(got.uv, want.uv);  // 17 significant digits: exact
+    EXPECT_EQ(got.phase, want.phase);
+    EXPECT_EQ(got.r, want.r);
+    EXPECT_EQ(got.g, want.g);
+    EXPECT_EQ(got.b, want.b);
+    EXPECT_EQ(got.width, want.width);
+  }
+
+  // A later run without touches in the same folder leaves none behind.
+  writeSim(tmp, frames, cam);
+  EXPECT_FALSE(fs::exists(dir + "/touches.txt"));
+  EXPECT_TRUE(Dataset::open(dir).touches().empty());
+}
+
+TEST(DatasetTouchesTest, WriterRejectsBadTouches) {
+  TempDir tmp;
+  const PinholeCamera cam = smallCamera();
+  const auto frames = syntheticFrames(cam, 3);
+  DatasetWriter writer(tmp.file("w"), cam);
+  writer.addFrame(frames[0].timestamp, frames[0].image, frames[0].T_w_c);
+  EXPECT_THROW(writer.addTouch(touchOn(frames, 1, TouchPhase::kBegin, 1, 1)), Error);  // no frame
+  EXPECT_THROW(writer.addTouch(touchOn(frames, 0, TouchPhase::kMove, 1, 1)), Error);   // no begin
+  TouchEvent e = touchOn(frames, 0, TouchPhase::kBegin, 1, 1);
+  e.timestamp += 0.01;
+  EXPECT_THROW(writer.addTouch(e), Error);                                              // stamp
+  EXPECT_THROW(writer.addTouch(touchOn(frames, 0, TouchPhase::kBegin, 64, 1)), Error);  // outside
+  e = touchOn(frames, 0, TouchPhase::kBegin, 1, 1);
+  e.width = 0;
+  EXPECT_THROW(writer.addTouch(e), Error);
+  EXPECT_EQ(writer.touchCount(), 0u);
+  writer.addTouch(touchOn(frames, 0, TouchPhase::kBegin, 1, 1));
+  EXPECT_THROW(writer.addTouch(touchOn(frames, 0, TouchPhase::kBegin, 1, 1)), Error);  // open
+  writer.addFrame(frames[1].timestamp, frames[1].image, frames[1].T_w_c);
+  writer.addTouch(touchOn(frames, 1, TouchPhase::kMove, 2, 2));
+  EXPECT_THROW(writer.addTouch(touchOn(frames, 0, TouchPhase::kEnd, 1, 1)), Error);  // back
+  EXPECT_EQ(writer.touchCount(), 2u);
+  EXPECT_CONTAINS(errorOf([&] { writer.finish(); }), "the last stroke has no end");
+}
+
+TEST_F(DatasetBadInputTest, MalformedTouchesLineNamesFileAndLine) {
+  const std::string file = dir_ + "/touches.txt";
+  // Frame stamps: 1000 + i / 30 (4 frames).
+  const std::string header = "# touches\n";
+  const std::string begin = "1000.000000 0 10 10 begin 255 64 32 0.03\n";
+  const std::string end = "1000.100000 3 12 12 end 255 64 32 0.03\n";
+  writeText(file, header + begin + "1000.033333 1 11 11 move 1 2 3 0.5\n" + end);
+  ASSERT_EQ(Dataset::open(dir_).touches().size(), 3u);
+  EXPECT_EQ(Dataset::open(dir_).touches()[1].phase, TouchPhase::kMove);
+  struct Case {
+    std::string line, expected;
+  } cases[] = {
+      {"1000.033333 1 11 11 move 1 2 3", "expected 9 fields"},
+      {"1000.033333 4 11 11 move 1 2 3 0.5", "frame_index '4' is not an integer in [0, 3]"},
+      {"1000.033333 -1 11 11 move 1 2 3 0.5", "frame_index '-1'"},
+      {"1000.033333 1.0 11 11 move 1 2 3 0.5", "frame_index '1.0'"},
+      {"1000.066667 1 11 11 move 1 2 3 0.5", "is not the stamp of frame 1"},
+      {"1000.033333 1 11 nan move 1 2 3 0.5", "v 'nan' is not"},
+      {"1000.033333 1 11 48 move 1 2 3 0.5", "outside the 64x48 image"},
+      {"1000.033333 1 11 11 drag 1 2 3 0.5", "phase 'drag' is not begin, move or end"},
+      {"1000.033333 1 11 11 move 1 256 3 0.5", "g '256' is not an integer in [0, 255]"},
+      {"1000.033333 1 11 11 move 1 2 3 0", "width 0 must be > 0"},
+      {"1000.033333 1 11 11 begin 1 2 3 0.5", "phase 'begin' inside a stroke"},
+  };
+  for (const auto& c : cases) {
+    writeText(file, header + begin + c.line + "\n" + end);
+    const std::string msg = errorOf([&] { Dataset::open(dir_); });
+    EXPECT_CONTAINS(msg, file + ":3: ");
+    EXPECT_CONTAINS(msg, c.expected);
+  }
+  // Order and whole strokes.
+  writeText(file, header + end + begin);
+  EXPECT_CONTAINS(errorOf([&] { Dataset::open(dir_); }), file + ":3: frame_index 0 is before");
+  writeText(file, header + "1000.033333 1 11 11 move 1 2 3 0.5\n");
+  EXPECT_CONTAINS(errorOf([&] { Dataset::open(dir_); }),
+                  file + ":2: phase 'move' without a 'begin' before");
+  writeText(file, header + begin);
+  EXPECT_CONTAINS(errorOf([&] { Dataset::open(dir_); }), file + ": the last stroke has no 'end'");
+}
+
 }  // namespace
 }  // namespace ecar

@@ -130,6 +130,29 @@ sensor_msgs::Imu toImu(const ecar::ImuSample& sample, const std_msgs::Header& he
   return imu;
 }
 
+ecar_msgs::Touch toTouchMsg(const ecar::TouchEvent& touch, const std_msgs::Header& header) {
+  ecar_msgs::Touch m;
+  m.header = header;
+  m.u = static_cast<float>(touch.uv.x());
+  m.v = static_cast<float>(touch.uv.y());
+  switch (touch.phase) {
+    case ecar::TouchPhase::kBegin:
+      m.phase = ecar_msgs::Touch::BEGIN;
+      break;
+    case ecar::TouchPhase::kMove:
+      m.phase = ecar_msgs::Touch::MOVE;
+      break;
+    case ecar::TouchPhase::kEnd:
+      m.phase = ecar_msgs::Touch::END;
+      break;
+  }
+  m.r = touch.r;
+  m.g = touch.g;
+  m.b = touch.b;
+  m.width = static_cast<float>(touch.width);
+  return m;
+}
+
 sensor_msgs::ImagePtr toImageMsg(const cv::Mat& image, const std_msgs::Header& header) {
   if (image.empty()) throw ecar::Error("toImageMsg: empty image");
   std::string encoding;

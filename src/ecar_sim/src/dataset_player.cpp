@@ -91,6 +91,7 @@ void DatasetPlayerConfig::validate() const {
   if (!std::isfinite(wait_subscribers) || wait_subscribers < 0.0) {
     fail("wait_subscribers", "must be >= 0 s");
   }
+  if (!std::isfinite(touch_settle) || touch_settle < 0.0) fail("touch_settle", "must be >= 0 s");
   if (first_frame < 0) fail("first_frame", "must be >= 0");
   if (max_frames < 0) fail("max_frames", "must be >= 0 (0 = all frames)");
 }
@@ -115,6 +116,7 @@ DatasetPlayerConfig loadDatasetPlayerConfig(const ros::NodeHandle& pnh) {
   readParam(pnh, "ack_timeout", "a number", &c.ack_timeout);
   readParam(pnh, "start_delay", "a number", &c.start_delay);
   readParam(pnh, "wait_subscribers", "a number", &c.wait_subscribers);
+  readParam(pnh, "touch_settle", "a number", &c.touch_settle);
   readParam(pnh, "first_frame", "an integer", &c.first_frame);
   readParam(pnh, "max_frames", "an integer", &c.max_frames);
   readParam(pnh, "loop", "a bool", &c.loop);
@@ -141,6 +143,7 @@ DatasetPlayer::DatasetPlayer(ros::NodeHandle nh, DatasetPlayerConfig config)
   imu_pub_ = nh_.advertise<sensor_msgs::Imu>(topics_.imu(), 2000);
   odom_pub_ = nh_.advertise<geometry_msgs::PoseStamped>(topics_.odometry(), 10);
   finished_pub_ = nh_.advertise<std_msgs::Bool>(topics_.player_finished(), 1, /*latch=*/true);
+  touch_pub_ = nh_.advertise<ecar_msgs::Touch>(topics_.touch(), 100);
   if (config_.pace_by_consumer) {
     frame_done_sub_ = nh_.subscribe(topics_.frame_done(), 10, &DatasetPlayer::onFrameDone, this);
   }
@@ -158,6 +161,10 @@ size_t DatasetPlayer::run() {
       config_.device.c_str(), dataset_.dir().c_str(), ecar::toString(dataset_.format()).c_str(),
       begin, begin + count - 1, dataset_.size(), cam.width, cam.height, cam.fx, config_.rate,
       config_.pace_by_consumer ? ", paced by frame_done" : "", config_.loop ? ", looping" : "");
+  if (!dataset_.touches().empty()) {
+    ROS_INFO("%s: %zu scripted touches on %s", config_.device.c_str(), dataset_.touches().size(),
+             touch_pub_.getTopic().c_str());
+  }
 
   waitForSubscribers();
   const Clock::time_point start = Clock::now();
@@ -214,6 +221,7 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
                why.find(frame.image_path) == std::string::npos
                    ? (frame.image_path + ": " + why).c_str()
                    : why.c_str());
+      warnDroppedTouches(i);
       continue;
     }
 
@@ -229,6 +237,7 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
     } catch (const ecar::Error& e) {  // an image type toImageMsg cannot carry
       ROS_WARN("%s: skipping frame %zu (%s): %s", config_.device.c_str(), i,
                frame.image_path.c_str(), e.what());
+      warnDroppedTouches(i);
       continue;
     }
     ++published;
@@ -246,8 +255,42 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
       anchor_wall_ = Clock::now();
       anchor_t_ = frame.timestamp;
     }
+    // After the consumer's frame_done when paced: the device touches at this frame's pose.
+    if (publishTouches(i, header) > 0 && config_.pace_by_consumer && config_.touch_settle > 0.0) {
+      const auto settle = std::chrono::duration<double>(config_.touch_settle);
+      if (!sleepUntil(Clock::now() + std::chrono::duration_cast<Clock::duration>(settle))) break;
+      anchor_wall_ = Clock::now();
+    }
   }
   return published;
+}
+
+std::pair<size_t, size_t> DatasetPlayer::touchesOf(size_t i) const {
+  const auto& touches = dataset_.touches();
+  const auto by_frame = [](const ecar::TouchEvent& e, size_t frame) { return e.frame < frame; };
+  const auto first = std::lower_bound(touches.begin(), touches.end(), i, by_frame);
+  const auto last = std::lower_bound(first, touches.end(), i + 1, by_frame);
+  return {static_cast<size_t>(first - touches.begin()),
+          static_cast<size_t>(last - touches.begin())};
+}
+
+size_t DatasetPlayer::publishTouches(size_t i, const std_msgs::Header& image_header) {
+  const auto [first, last] = touchesOf(i);
+  std_msgs::Header header;
+  header.stamp = image_header.stamp;
+  header.frame_id = topics_.camera_frame();
+  for (size_t k = first; k < last; ++k) {
+    touch_pub_.publish(toTouchMsg(dataset_.touches()[k], header));
+  }
+  return last - first;
+}
+
+void DatasetPlayer::warnDroppedTouches(size_t i) const {
+  const auto [first, last] = touchesOf(i);
+  if (last > first) {
+    ROS_WARN("%s: %zu scripted touch(es) of skipped frame %zu dropped", config_.device.c_str(),
+             last - first, i);
+  }
 }
 
 std_msgs::Header DatasetPlayer::publishFrame(size_t i, const cv::Mat& image) {

@@ -12,6 +12,17 @@
 //   <device>/odometry            geometry_msgs/PoseStamped T_o_c, frame <device>/odom
 //                                (frames that have odometry)
 //   tf <world_frame> -> <device>/camera_gt   ground truth T_w_c (frames that have it)
+//   <device>/touch               ecar_msgs/Touch, the dataset's scripted touches
+//                                (touches.txt, see ecar_core/dataset.h): those of
+//                                frame i with header.stamp = frame i's image
+//                                stamp, frame_id <device>/camera, in file order;
+//                                with ~pace_by_consumer after the consumer's
+//                                frame_done for frame i (or ~ack_timeout) and
+//                                before frame i+1's image (~touch_settle s
+//                                before it), so a device applies them at
+//                                frame i's pose; otherwise right after
+//                                frame i's image. Touches of a skipped
+//                                (unreadable) frame are dropped with a warning.
 //   <device>/player/finished     std_msgs/Bool, latched, true after the last frame
 // Subscribes (with ~pace_by_consumer) to <device>/frame_done, std_msgs/UInt32:
 // the header.seq of the last image the consumer has processed.
@@ -33,6 +44,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <utility>
 
 #include <image_transport/image_transport.h>
 #include <ros/ros.h>
@@ -61,7 +73,11 @@ struct DatasetPlayerConfig {
   /// ~start_delay: seconds to wait before the first frame, after waiting up to
   /// ~wait_subscribers seconds for a subscriber on image_raw.
   double start_delay = 0.5;
-  double wait_subscribers = 5.0;    ///< ~wait_subscribers, seconds, >= 0
+  double wait_subscribers = 5.0;  ///< ~wait_subscribers, seconds, >= 0
+  /// ~touch_settle: with ~pace_by_consumer, seconds to wait after a frame's
+  /// touches before the next image (>= 0). Topics are not ordered with each
+  /// other, so without it the next image can reach the device before them.
+  double touch_settle = 0.05;
   int first_frame = 0;              ///< ~first_frame: index of the first frame played
   int max_frames = 0;               ///< ~max_frames: frames per pass, 0 = to the end
   bool loop = false;                ///< ~loop: start over after the last frame
@@ -100,6 +116,12 @@ class DatasetPlayer {
   /// Publishes frame i (image already loaded); returns its header.
   std_msgs::Header publishFrame(size_t i, const cv::Mat& image);
   void publishImu(size_t i, const std_msgs::Header& header);
+  /// Indices [first, last) into dataset_.touches() of frame i's touches.
+  std::pair<size_t, size_t> touchesOf(size_t i) const;
+  /// Publishes the scripted touches of frame i with the stamp of its image;
+  /// returns how many.
+  size_t publishTouches(size_t i, const std_msgs::Header& image_header);
+  void warnDroppedTouches(size_t i) const;
   /// Stamp of an IMU sample at dataset time t_imu for a frame at t_frame.
   ros::Time imuStamp(double t_imu, double t_frame, const ros::Time& frame_stamp) const;
 
@@ -122,6 +144,7 @@ class DatasetPlayer {
   ros::Publisher imu_pub_;
   ros::Publisher odom_pub_;
   ros::Publisher finished_pub_;
+  ros::Publisher touch_pub_;
   ros::Subscriber frame_done_sub_;
   tf2_ros::TransformBroadcaster tf_broadcaster_;
 

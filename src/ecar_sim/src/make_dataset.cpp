@@ -5,9 +5,10 @@
 //                                [--gray] [--bag] [--quiet]
 //
 // Writes the TUM layout (rgb/, rgb.txt, groundtruth.txt, camera.yaml, imu.txt,
-// gravity.txt, odometry.txt; see ecar_core/dataset_writer.h), a contact sheet
+// gravity.txt, odometry.txt and, when the scene scripts touches for the device,
+// touches.txt; see ecar_core/dataset_writer.h), a contact sheet
 // (contact_sheet.png) and, with --bag, DIR/<device>.bag holding the device's
-// topics as the dataset player publishes them.
+// topics as the dataset player publishes them (scripted touches included).
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -16,7 +17,9 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
+#include <ecar_msgs/Touch.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <rosbag/bag.h>
 #include <tf2_msgs/TFMessage.h>
@@ -160,6 +163,16 @@ class BagWriter {
     odom.pose = ecar_sim::toPose(m.T_o_c);
     bag_.write("/" + topics_.odometry(), stamp, odom);
   }
+  /// A scripted touch of the frame at dataset time t: header stamp = the
+  /// frame's; bag time 1 us later, so that `rosbag play` sends it after the
+  /// frame's image (as the player does).
+  void addTouch(double t, const ecar::TouchEvent& touch) {
+    std_msgs::Header h;
+    h.stamp = kEpoch + ros::Duration(t);
+    h.frame_id = topics_.camera_frame();
+    bag_.write("/" + topics_.touch(), h.stamp + ros::Duration(0, 1000),
+               ecar_sim::toTouchMsg(touch, h));
+  }
   void close() { bag_.close(); }
 
  private:
@@ -173,7 +186,16 @@ int run(const Options& o) {
   ecar::Scene scene = ecar::loadScene(o.scene);
   if (o.seed) scene.texture.seed = *o.seed;
   const ecar::DeviceSpec& device = scene.device(o.device);
-  const auto motion = ecar::generateMotion(scene, device, scene.camera.fps, o.frames);
+  std::vector<ecar::MotionSample> motion = ecar::generateMotion(scene, device, scene.camera.fps);
+  const size_t total_frames = motion.size();
+  if (o.frames > 0 && static_cast<size_t>(o.frames) < motion.size()) motion.resize(o.frames);
+  // Stamps at the microsecond resolution of rgb.txt, so a frame, its IMU
+  // sample and its touches carry exactly the same time.
+  for (ecar::MotionSample& m : motion) m.timestamp = std::round(m.timestamp * 1e6) * 1e-6;
+  ecar::Trajectory frames;
+  for (const ecar::MotionSample& m : motion) frames.push_back({m.timestamp, m.T_w_c});
+  const std::vector<ecar::TouchEvent> touches =
+      ecar::scriptTouches(scene, device, frames, total_frames);
   const ecar::Renderer renderer(scene);
   ecar::DatasetWriter writer(o.out, renderer.camera());
   ContactSheet sheet(static_cast<int>(motion.size()), 4, 3,
@@ -189,17 +211,20 @@ int run(const Options& o) {
   ropt.noise_sigma = static_cast<float>(scene.noise_sigma);
   ecar::RenderOutput out;
   const auto start = std::chrono::steady_clock::now();
+  auto touch = touches.begin();
   for (size_t i = 0; i < motion.size(); ++i) {
     const ecar::MotionSample& m = motion[i];
-    // Stamps at the microsecond resolution of rgb.txt, so a frame and its IMU
-    // sample carry exactly the same time.
-    const double t = std::round(m.timestamp * 1e6) * 1e-6;
+    const double t = m.timestamp;
     ropt.noise_seed = static_cast<uint32_t>(i);
     renderer.render(m.T_w_c, ropt, &out);
     writer.addImu(ecar::ImuSample{t, m.gravity_c, m.gyro_c});
     writer.addFrame(t, out.image, m.T_w_c, m.gravity_c, m.T_o_c);
     sheet.offer(static_cast<int>(i), out.image);
     if (bag) bag->addFrame(static_cast<int>(i), t, out.image, m);
+    for (; touch != touches.end() && touch->frame == i; ++touch) {
+      writer.addTouch(*touch);
+      if (bag) bag->addTouch(t, *touch);
+    }
     if (!o.quiet && (i % 25 == 0 || i + 1 == motion.size())) {
       const double el =
           std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -224,6 +249,9 @@ int run(const Options& o) {
   std::printf("frames:        %zu (%.1f s at %.0f fps, %.1f m travelled)\n", motion.size(),
               motion.empty() ? 0.0 : motion.back().timestamp, scene.camera.fps, length);
   std::printf("contact sheet: %s\n", std::filesystem::absolute(sheet_path).c_str());
+  if (!touches.empty()) {
+    std::printf("touches:       %zu scripted (touches.txt)\n", touches.size());
+  }
   if (bag) std::printf("bag:           %s\n", std::filesystem::absolute(bag_path).c_str());
   return 0;
 }

@@ -48,6 +48,7 @@ TEST(DeviceTopicsTest, NamesAreBuiltFromTheDevice) {
   EXPECT_EQ(topics.odometry(), "device_0/odometry");
   EXPECT_EQ(topics.frame_done(), "device_0/frame_done");
   EXPECT_EQ(topics.player_finished(), "device_0/player/finished");
+  EXPECT_EQ(topics.touch(), "device_0/touch");
   EXPECT_EQ(topics.camera_frame(), "device_0/camera");
   EXPECT_EQ(topics.gt_frame(), "device_0/camera_gt");
   EXPECT_EQ(topics.odom_frame(), "device_0/odom");
@@ -208,6 +209,36 @@ TEST(ImuTest, CarriesAccelerationAndRateWithoutOrientation) {
   EXPECT_EQ(fromVector3(imu.linear_acceleration), sample.acc_c);
   EXPECT_EQ(fromVector3(imu.angular_velocity), sample.gyro_c);
   EXPECT_EQ(imu.linear_acceleration_covariance[0], 0.0);  // unknown, but present
+}
+
+TEST(TouchTest, CarriesPixelPhaseColourAndWidth) {
+  ecar::TouchEvent e;
+  e.timestamp = 12.5;
+  e.frame = 7;
+  e.uv = Eigen::Vector2d(320.25, 100.5);
+  e.r = 1;
+  e.g = 2;
+  e.b = 250;
+  e.width = 0.05;
+  const struct {
+    ecar::TouchPhase phase;
+    uint8_t expected;
+  } phases[] = {{ecar::TouchPhase::kBegin, ecar_msgs::Touch::BEGIN},
+                {ecar::TouchPhase::kMove, ecar_msgs::Touch::MOVE},
+                {ecar::TouchPhase::kEnd, ecar_msgs::Touch::END}};
+  for (const auto& c : phases) {
+    e.phase = c.phase;
+    const ecar_msgs::Touch m = toTouchMsg(e, makeHeader());
+    EXPECT_EQ(m.phase, c.expected);
+    EXPECT_EQ(m.header.stamp, ros::Time(1234, 5678));
+    EXPECT_EQ(m.header.frame_id, "device_3/camera");
+    EXPECT_EQ(m.u, 320.25f);
+    EXPECT_EQ(m.v, 100.5f);
+    EXPECT_EQ(m.r, 1);
+    EXPECT_EQ(m.g, 2);
+    EXPECT_EQ(m.b, 250);
+    EXPECT_FLOAT_EQ(m.width, 0.05f);
+  }
 }
 
 TEST(ImageTest, EncodingFollowsTheMatType) {

@@ -3,22 +3,35 @@
 # first on PATH has no rospy.)
 """End-to-end test of dataset_player (started by player.test).
 
-Receives the frames the player publishes for one device, acknowledges each on
-/<device>/frame_done (the player runs with ~pace_by_consumer), and checks:
-the number of images, their size and encoding, camera_info intrinsics, the
-ground-truth tf map -> <device>/camera_gt of the last frame against the
-dataset's groundtruth.txt, and the latched /<device>/player/finished flag.
+test_plays_first_frames_of_kitti07: receives the frames the player of
+player.test publishes for one device, acknowledges each on /<device>/frame_done
+(the player runs with ~pace_by_consumer), and checks: the number of images,
+their size and encoding, camera_info intrinsics, the ground-truth tf
+map -> <device>/camera_gt of the last frame against the dataset's
+groundtruth.txt, and the latched /<device>/player/finished flag.
 
-Private params: ~dataset (folder, KITTI 07 layout), ~device, ~frames.
+test_replays_scripted_touches: renders a short dataset of touch_scene.yaml
+(whose device scripts touch events and a world stroke) with make_dataset,
+plays it paced by this node's acks, and checks that every line of touches.txt
+comes back as one ecar_msgs/Touch with its pixel, phase, colour and width,
+stamped with its frame's image stamp, received after that image and before
+the next one.
+
+Private params: ~dataset (folder, KITTI 07 layout), ~device, ~frames,
+~touch_scene (scene file), ~player_launch.
 """
 
 import os
+import shutil
+import subprocess
 import sys
+import tempfile
 import threading
 import unittest
 
 import rospy
 import rostest
+from ecar_msgs.msg import Touch
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Bool, UInt32
 from tf2_msgs.msg import TFMessage
@@ -139,6 +152,104 @@ class PlayerTest(unittest.TestCase):
             self.assertAlmostEqual(sign * got, want, delta=1e-6)
 
 
+class TouchReplayTest(unittest.TestCase):
+    DEVICE = "touch_dev"
+    FRAMES = 12
+    PHASES = {"begin": Touch.BEGIN, "move": Touch.MOVE, "end": Touch.END}
+
+    def setUp(self):
+        self.lock = threading.Lock()
+        self.log = []  # ("image", msg) and ("touch", msg) in arrival order
+        self.finished = False
+        self.tmp = tempfile.mkdtemp(prefix="ecar_touch_replay_")
+        self.player = None
+
+    def tearDown(self):
+        if self.player is not None and self.player.poll() is None:
+            self.player.terminate()
+            self.player.wait(timeout=20)
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def on_image(self, msg):
+        with self.lock:
+            self.log.append(("image", msg))
+        self.done_pub.publish(UInt32(data=msg.header.seq))
+
+    def on_touch(self, msg):
+        with self.lock:
+            self.log.append(("touch", msg))
+
+    def on_finished(self, msg):
+        with self.lock:
+            self.finished = msg.data
+
+    def test_replays_scripted_touches(self):
+        dataset = os.path.join(self.tmp, "touch")
+        subprocess.run(["rosrun", "ecar_sim", "make_dataset", "--scene",
+                        rospy.get_param("~touch_scene"), "--device", self.DEVICE, "--out", dataset,
+                        "--frames", str(self.FRAMES), "--quiet"],
+                       check=True, stdout=subprocess.DEVNULL)
+        expected = read_tum_list(os.path.join(dataset, "touches.txt"))
+        # The script: begin/move/end events on frames 2, 3, 5, a stroke on frames 7..10.
+        self.assertEqual([int(r[1]) for r in expected], [2, 3, 5, 7, 8, 9, 10])
+        self.assertEqual([r[4] for r in expected],
+                         ["begin", "move", "end", "begin", "move", "move", "end"])
+
+        ns = "/" + self.DEVICE
+        self.done_pub = rospy.Publisher(ns + "/frame_done", UInt32, queue_size=100)
+        rospy.Subscriber(ns + "/touch", Touch, self.on_touch, queue_size=100)
+        rospy.Subscriber(ns + "/player/finished", Bool, self.on_finished, queue_size=1)
+        rospy.Subscriber(ns + "/camera/image_raw", Image, self.on_image, queue_size=100)
+        self.player = subprocess.Popen(
+            ["roslaunch", rospy.get_param("~player_launch"), "dataset:=" + dataset,
+             "device:=" + self.DEVICE, "rate:=0", "pace_by_consumer:=true", "start_delay:=1.0",
+             "wait_subscribers:=20.0", "output:=log"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+        deadline = rospy.Time.now() + rospy.Duration(45.0)
+        while not rospy.is_shutdown() and rospy.Time.now() < deadline:
+            with self.lock:
+                if self.finished:
+                    break
+            rospy.sleep(0.05)
+        rospy.sleep(0.5)
+        with self.lock:
+            log, finished = list(self.log), self.finished
+        self.assertTrue(finished, "no true on %s/player/finished" % ns)
+
+        images = [m for kind, m in log if kind == "image"]
+        touches = [m for kind, m in log if kind == "touch"]
+        self.assertEqual(len(images), self.FRAMES)
+        self.assertEqual(len(touches), len(expected))
+        for msg, row in zip(touches, expected):
+            frame = int(row[1])
+            self.assertEqual(msg.header.frame_id, self.DEVICE + "/camera")
+            self.assertEqual(msg.header.stamp, images[frame].header.stamp,
+                             "touch of frame %d not stamped with its image" % frame)
+            self.assertAlmostEqual(msg.u, float(row[2]), delta=1e-4)
+            self.assertAlmostEqual(msg.v, float(row[3]), delta=1e-4)
+            self.assertEqual(msg.phase, self.PHASES[row[4]])
+            self.assertEqual((msg.r, msg.g, msg.b), tuple(int(x) for x in row[5:8]))
+            self.assertAlmostEqual(msg.width, float(row[8]), delta=1e-6)
+            # Published after this node acknowledged the frame's image, before the next image.
+            position = next(k for k, (kind, m) in enumerate(log) if m is msg)
+            seen = sum(1 for kind, _ in log[:position] if kind == "image")
+            self.assertEqual(seen, frame + 1, "touch of frame %d arrived after %d images"
+                             % (frame, seen))
+        # The script's colours and pixels made it through.
+        self.assertEqual((touches[0].r, touches[0].g, touches[0].b), (0, 255, 0))
+        self.assertAlmostEqual(touches[0].width, 0.05, places=6)
+        self.assertEqual((touches[1].u, touches[1].v), (50.0, 91.0))
+        self.assertEqual((touches[2].r, touches[2].g, touches[2].b), (0, 255, 0))  # its begin's
+        self.assertEqual((touches[3].r, touches[3].g, touches[3].b), (255, 64, 32))
+
+
+def suite():
+    loader = unittest.TestLoader()
+    return unittest.TestSuite([loader.loadTestsFromTestCase(PlayerTest),
+                               loader.loadTestsFromTestCase(TouchReplayTest)])
+
+
 if __name__ == "__main__":
     rospy.init_node("player_test")
-    rostest.rosrun(PKG, "player_test", PlayerTest)
+    rostest.rosrun(PKG, "player_test", "__main__.suite")

@@ -15,6 +15,13 @@
 //          dir/gravity.txt     optional; `timestamp gx gy gz`, accelerometer at
 //                              rest in the camera frame (m/s^2, points up)
 //          dir/odometry.txt    optional; TUM, T_o_c at frame stamps
+//          dir/touches.txt     optional (read for any format); scripted touches,
+//                              `timestamp frame_index u v phase r g b width`:
+//                              the frame's stamp, its 0-based index in the
+//                              frame list, the pixel (inside the image),
+//                              begin|move|end, colour 0-255, width in metres
+//                              (> 0); lines in frame order, phases forming
+//                              whole strokes (begin, move..., end)
 //          (written by DatasetWriter, see dataset_writer.h)
 //   tum    dir/rgb.txt + dir/rgb/, no camera.yaml. Intrinsics: the override
 //          file, else the published fr1/fr2/fr3 calibration when the folder
@@ -49,6 +56,7 @@
 
 #include "ecar_core/camera.h"
 #include "ecar_core/geometry.h"
+#include "ecar_core/touch.h"
 #include "ecar_core/trajectory.h"
 
 namespace ecar {
@@ -111,6 +119,10 @@ class Dataset {
   /// IMU samples in time order (empty when the dataset has none).
   const std::vector<ImuSample>& imu() const { return imu_; }
 
+  /// The scripted touches of dir/touches.txt in frame order (empty when the
+  /// file is absent); each event's frame indexes frames().
+  const std::vector<TouchEvent>& touches() const { return touches_; }
+
   /// True when at least one frame has a ground-truth pose.
   bool hasGroundTruth() const;
   /// The ground-truth poses of the frames that have one, in frame order.
@@ -125,6 +137,7 @@ class Dataset {
   std::vector<DatasetFrame> frames_;
   std::vector<std::string> sources_;  ///< "<list file>:<line>" of each frame, for errors
   std::vector<ImuSample> imu_;
+  std::vector<TouchEvent> touches_;
 };
 
 }  // namespace ecar

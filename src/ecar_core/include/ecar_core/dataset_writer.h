@@ -15,15 +15,19 @@
 //   gravity.txt      `timestamp gx gy gz`: accelerometer at rest in the camera
 //                    frame (m/s^2, points up); only frames given one
 //   odometry.txt     `timestamp tx ty tz qx qy qz qw`: T_o_c, only frames given one
+//   touches.txt      `timestamp frame_index u v phase r g b width`: scripted
+//                    touches (see dataset.h), phase begin|move|end
 //
 // rgb.txt, groundtruth.txt and imu.txt always exist (possibly with no records);
-// gravity.txt and odometry.txt only when some frame had the value. Poses and IMU
+// gravity.txt, odometry.txt and touches.txt only when some frame had the value. Poses and IMU
 // values are written with 17 significant digits, so they read back exactly.
 #pragma once
 
 #include <fstream>
 #include <optional>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
@@ -31,6 +35,7 @@
 #include "ecar_core/camera.h"
 #include "ecar_core/dataset.h"
 #include "ecar_core/geometry.h"
+#include "ecar_core/touch.h"
 
 namespace ecar {
 
@@ -58,11 +63,20 @@ class DatasetWriter {
   /// Appends to imu.txt. Stamps must increase (at nanosecond resolution).
   void addImu(const ImuSample& sample);
 
+  /// Appends to touches.txt a touch on an already added frame; the line
+  /// carries that frame's stamp. Throws ecar::Error when touch.frame is not an
+  /// added frame or is before the previous touch's, touch.timestamp is not
+  /// that frame's stamp (to 1 us), the pixel is outside the image or not
+  /// finite, width is not > 0, or the phase breaks the begin, move..., end
+  /// pattern (finish() also fails when the last stroke has no end).
+  void addTouch(const TouchEvent& touch);
+
   /// Writes camera.yaml and closes the files. Further calls do nothing.
   void finish();
 
   const std::string& dir() const { return dir_; }
   size_t frameCount() const { return frame_count_; }
+  size_t touchCount() const { return touch_count_; }
 
  private:
   void checkOpen() const;
@@ -76,10 +90,15 @@ class DatasetWriter {
   std::ofstream imu_;
   std::ofstream gravity_;   // opened on the first frame with gravity
   std::ofstream odometry_;  // opened on the first frame with odometry
+  std::ofstream touches_;   // opened on the first touch
+  /// Stamp of every added frame: microseconds and its rgb.txt text.
+  std::vector<std::pair<long long, std::string>> frame_stamps_;
+  std::optional<TouchEvent> last_touch_;
   long long last_frame_us_ = 0;
   long long last_imu_ns_ = 0;
   size_t frame_count_ = 0;
   size_t imu_count_ = 0;
+  size_t touch_count_ = 0;
   bool finished_ = false;
 };
 

@@ -14,6 +14,8 @@
 #include <Eigen/Core>
 
 #include "ecar_core/camera.h"
+#include "ecar_core/touch.h"
+#include "ecar_core/trajectory.h"
 
 namespace ecar {
 
@@ -74,11 +76,36 @@ struct OdometryNoise {
   double yaw_walk_deg = 0.15;   ///< degrees per sqrt(m travelled), random walk
 };
 
+/// One item of a device's `touches:` list (config/scenes/README.md): a single
+/// touch event, or a stroke that expands to BEGIN at start_frame, a MOVE on
+/// every frame in between and END at end_frame, its point moving linearly from
+/// `from` to `to`. Frames are indices into the device's generated frames.
+struct TouchScriptItem {
+  bool stroke = false;  ///< true: a `stroke:` item; false: one event
+  int start_frame = 0;  ///< event: its `frame`; stroke: `start_frame` (BEGIN)
+  int end_frame = 0;    ///< event: = start_frame; stroke: `end_frame` (END), > start_frame
+  TouchPhase phase = TouchPhase::kBegin;  ///< event only: `phase`
+  /// True for world points (`at`, `from`/`to`), projected with each frame's
+  /// ground-truth pose; false for pixels (`pixel`, `from_pixel`/`to_pixel`).
+  bool in_world = false;
+  Eigen::Vector3d from_w = Eigen::Vector3d::Zero();   ///< world point, m (event: `at`)
+  Eigen::Vector3d to_w = Eigen::Vector3d::Zero();     ///< world point, m (event: = from_w)
+  Eigen::Vector2d from_uv = Eigen::Vector2d::Zero();  ///< pixel (event: `pixel`)
+  Eigen::Vector2d to_uv = Eigen::Vector2d::Zero();    ///< pixel (event: = from_uv)
+  /// `color: [r, g, b]`, 0-255. Default [255, 64, 32]; a `move` or `end`
+  /// event without one takes its stroke's `begin`'s (so does `width`).
+  uint8_t r = 255, g = 64, b = 32;
+  double width = 0.03;  ///< `width`, stroke width in metres, > 0 (default 0.03)
+};
+
 struct DeviceSpec {
   std::string name;
   TrajectorySpec trajectory;
   OdometryNoise odometry;
   uint32_t seed = 0;  ///< hand-jitter and odometry-noise seed
+  /// Scripted touches, frames strictly increasing from item to item, phases
+  /// forming whole strokes (checked by loadScene).
+  std::vector<TouchScriptItem> touches;
 };
 
 struct Scene {
@@ -100,5 +127,20 @@ struct Scene {
 /// Loads and validates a scene file. Throws ecar::Error naming the file and the
 /// key (e.g. "corridor.yaml: devices[1].trajectory: missing key 'waypoints'").
 Scene loadScene(const std::string& path);
+
+/// The touch events of `device`'s script (scene.devices), one per scripted
+/// frame, in frame order. `frames[i]` is frame i's stamp and ground-truth pose
+/// T_w_c; world points are projected with it through PinholeCamera(scene.camera).
+/// `total_frames` is the length of the device's whole trajectory, of which
+/// `frames` may be a prefix (make_dataset --frames): an item at or past
+/// total_frames is an error; events past the end of `frames` are dropped, and a
+/// stroke the cut leaves open ends there (its MOVE on the last frame becomes
+/// END; a BEGIN on the last frame is dropped; otherwise an END on the last
+/// frame at the previous event's pixel is added). Throws ecar::Error naming the
+/// scene file, the device, the item (touches[k]) and the frame when an item is
+/// past the trajectory or a world point is behind the camera or projects
+/// outside the image.
+std::vector<TouchEvent> scriptTouches(const Scene& scene, const DeviceSpec& device,
+                                      const Trajectory& frames, size_t total_frames);
 
 }  // namespace ecar

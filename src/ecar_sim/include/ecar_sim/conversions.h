@@ -9,6 +9,7 @@
 #include <string>
 
 #include <ecar_msgs/Plane.h>
+#include <ecar_msgs/Touch.h>
 #include <ecar_msgs/VirtualObject.h>
 #include <geometry_msgs/Point.h>
 #include <geometry_msgs/Pose.h>
@@ -45,6 +46,8 @@ struct DeviceTopics {
   std::string frame_done() const { return ns + "/frame_done"; }
   /// std_msgs/Bool, latched: true once the player has published every frame.
   std::string player_finished() const { return ns + "/player/finished"; }
+  /// ecar_msgs/Touch: the user's touches on the camera image (scripted ones from the player).
+  std::string touch() const { return ns + "/touch"; }
 
   /// The device's optical frame (x right, y down, z forward).
   std::string camera_frame() const { return ns + "/camera"; }
@@ -82,6 +85,11 @@ geometry_msgs::TransformStamped toTransform(const ecar::SE3& T_parent_child,
 /// Acceleration and angular rate of the sample; orientation_covariance[0] = -1
 /// (no orientation); the other covariances are zero (unknown).
 sensor_msgs::Imu toImu(const ecar::ImuSample& sample, const std_msgs::Header& header);
+
+/// A scripted touch (pixel, phase, colour, width) with `header` (the player
+/// gives it the stamp of the touch's frame and "<device>/camera"). The frame
+/// index and timestamp of the event are not carried.
+ecar_msgs::Touch toTouchMsg(const ecar::TouchEvent& touch, const std_msgs::Header& header);
 
 /// Copies `image` into a message: CV_8UC1 -> "mono8", CV_8UC3 -> "bgr8",
 /// CV_16UC1 -> "mono16". Throws ecar::Error on an empty image or another type.
