@@ -51,14 +51,16 @@ geometry_msgs::Quaternion rotationFromTo(const Eigen::Vector3d& from, const Eige
 }  // namespace
 
 std_msgs::ColorRGBA deviceColour(ecar::DeviceId id) {
-  static const std::array<std::array<float, 3>, 8> kPalette = {{{0.90f, 0.20f, 0.20f},
-                                                                {0.20f, 0.50f, 0.95f},
-                                                                {0.20f, 0.80f, 0.30f},
-                                                                {0.95f, 0.65f, 0.10f},
-                                                                {0.70f, 0.30f, 0.90f},
-                                                                {0.10f, 0.80f, 0.80f},
-                                                                {0.95f, 0.40f, 0.70f},
-                                                                {0.60f, 0.60f, 0.20f}}};
+  // Unlike the plane label colours (green, blue, yellow, grey), so that a
+  // device's cells stand out on the planes; device ids start at 1.
+  static const std::array<std::array<float, 3>, 8> kPalette = {{{1.00f, 1.00f, 1.00f},
+                                                                {1.00f, 0.25f, 0.20f},
+                                                                {1.00f, 0.55f, 0.00f},
+                                                                {0.95f, 0.25f, 0.85f},
+                                                                {0.10f, 0.90f, 0.95f},
+                                                                {0.60f, 0.35f, 1.00f},
+                                                                {1.00f, 0.65f, 0.75f},
+                                                                {0.65f, 0.40f, 0.15f}}};
   const auto& c = kPalette[id.value % kPalette.size()];
   std_msgs::ColorRGBA colour;
   colour.r = c[0];
@@ -171,7 +173,7 @@ visualization_msgs::MarkerArray structureMarkers(const std::vector<ecar::Plane>&
                         visualization_msgs::Marker::CUBE_LIST, frame, stamp);
     cubes.scale.x = cubes.scale.y = cubes.scale.z = 0.9 * cell_size;
     cubes.color = deviceColour(d.device);
-    cubes.color.a = 0.5f;
+    cubes.color.a = 0.7f;
     cubes.points.reserve(d.cells.size());
     for (const auto& c : d.cells) cubes.points.push_back(toPoint(ecar::cellCenter(c, cell_size)));
     out.markers.push_back(std::move(cubes));
@@ -205,7 +207,7 @@ visualization_msgs::InteractiveMarker voInteractiveMarker(const ecar::VirtualObj
   im.pose.position = toPoint(vo.position);
   im.pose.orientation.w = 1.0;
   const double length = (vo.end - vo.start).norm();
-  const double size = std::min(0.5, std::max(0.2, length));
+  const double size = std::min(0.5, std::max(0.15, length));
   im.scale = static_cast<float>(size);
 
   visualization_msgs::Marker disc;

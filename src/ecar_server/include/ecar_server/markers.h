@@ -25,7 +25,8 @@ struct CameraMarker {
   ecar::SE3 T_w_c = ecar::SE3::Identity();
 };
 
-/// A distinct colour per device id (a fixed palette, repeating after 8).
+/// A distinct colour per device id (a fixed palette, repeating after 8; none
+/// is a plane label's colour).
 std_msgs::ColorRGBA deviceColour(ecar::DeviceId id);
 
 /// Markers in frame `frame`: ns "map_points" (POINTS, grey), ns "keyframes"
@@ -65,8 +66,8 @@ ecar::ObjectId voMarkerId(const std::string& name);
 /// The interactive marker of a live VO in frame `frame`: named voMarkerName(),
 /// posed at vo.position with the identity orientation, one always-visible
 /// MOVE_PLANE control whose x axis (the plane normal) is vo.normal, showing a
-/// flat translucent disc in the VO's colour in its plane (0.2 m across, or the
-/// line's length when longer, up to 0.5 m). Description "vo <id>".
+/// flat translucent disc in the VO's colour in its plane (the line's length
+/// across, within [0.15, 0.5] m). Description "vo <id>".
 visualization_msgs::InteractiveMarker voInteractiveMarker(const ecar::VirtualObject& vo,
                                                           const std::string& frame);
 
