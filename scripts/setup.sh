@@ -46,7 +46,7 @@ else
     libnodelet-dev libnodeletlib-dev libnodeletlib-tools pluginlib-dev
     libdynamic-reconfigure-config-init-mutex-dev python3-dynamic-reconfigure
     libinteractive-markers-dev rviz librviz-dev
-    libvisualization-msgs-dev libsensor-msgs-dev libgeometry-msgs-dev libnav-msgs-dev libstd-srvs-dev
+    libvisualization-msgs-dev python3-visualization-msgs libsensor-msgs-dev libgeometry-msgs-dev libnav-msgs-dev libstd-srvs-dev
     ros-message-generation ros-message-runtime python3-genmsg python3-gencpp python3-genpy
   )
 fi

@@ -3,7 +3,8 @@
 // /<device>/local_graph with the timing fields. A tracked frame's graph also
 // carries the planes near the aligned pose and the virtual objects that reach
 // it (Structure::visible), plus, once, the tombstone of every object the
-// device was sent and that was deleted since.
+// device was sent and that was deleted since. With vo.share "direct" the
+// graphs carry no objects (the Interactions nodelet relays each change).
 #include <algorithm>
 #include <cmath>
 #include <map>
@@ -54,6 +55,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
     config_ = loadServerConfig(nh);
     ctx_ = ServerContext::get(nh.getNamespace(), config_);
     builder_ = ecar::LocalGraphBuilder(config_.localGraphConfig());
+    share_ = config_.voShare();
     ctx_->addListener(this);
     // One subscription: its callbacks run one at a time, in order.
     tracked_sub_ = nh.subscribe(kTrackedFrameTopic, 100, &GraphPublisherNodelet::onTrackedFrame,
@@ -160,20 +162,37 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
         graph->planes.push_back(toMsg(p));
       }
     }
-    graph->objects.reserve(v.objects.size());
+    structure.setDeviceCells(device, std::move(v.cells));
+    ++stats_count_;
+    stats_sum_ms_ += v.milliseconds;
+    stats_max_ms_ = std::max(stats_max_ms_, v.milliseconds);
+    NODELET_INFO_THROTTLE(5.0,
+                          "planes and objects per upload: %.2f ms mean, %.2f ms max over %zu "
+                          "uploads (last: %s frame %u, %zu planes, %zu objects visible)",
+                          stats_sum_ms_ / stats_count_, stats_max_ms_, stats_count_, device.c_str(),
+                          graph->frame_index, graph->planes.size(), v.objects.size());
+    if (share_ == VoShareMode::kDirect) return;
+    addObjects(structure, v.objects, device, graph);
+  }
+
+  // The visible objects, and the tombstones of objects the device was sent
+  // that were deleted since.
+  void addObjects(Structure& structure, const std::vector<ecar::VirtualObject>& objects,
+                  const std::string& device, ecar_msgs::LocalGraph* graph) {
+    graph->objects.reserve(objects.size());
     std::vector<ecar::ObjectId> gone;
     {
       std::lock_guard<std::mutex> lock(mutex_);
       std::map<ecar::ObjectId, uint32_t>& sent = sent_objects_[device];
-      for (const auto& vo : v.objects) sent[vo.id] = vo.version;
+      for (const auto& vo : objects) sent[vo.id] = vo.version;
       for (const auto& kv : sent) {
-        if (!std::binary_search(v.objects.begin(), v.objects.end(), kv.first,
+        if (!std::binary_search(objects.begin(), objects.end(), kv.first,
                                 [](const auto& a, const auto& b) { return idOf(a) < idOf(b); })) {
           gone.push_back(kv.first);
         }
       }
     }
-    for (const auto& vo : v.objects) graph->objects.push_back(toMsg(vo));
+    for (const auto& vo : objects) graph->objects.push_back(toMsg(vo));
     if (!gone.empty()) {
       std::vector<ecar::ObjectId> done;
       for (const auto& vo : structure.vos().objects(gone)) {
@@ -185,21 +204,13 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ContextListener {
       std::map<ecar::ObjectId, uint32_t>& sent = sent_objects_[device];
       for (const auto& id : done) sent.erase(id);
     }
-    structure.setDeviceCells(device, std::move(v.cells));
-    ++stats_count_;
-    stats_sum_ms_ += v.milliseconds;
-    stats_max_ms_ = std::max(stats_max_ms_, v.milliseconds);
-    NODELET_INFO_THROTTLE(5.0,
-                          "planes and objects per upload: %.2f ms mean, %.2f ms max over %zu "
-                          "uploads (last: %s frame %u, %zu planes, %zu objects)",
-                          stats_sum_ms_ / stats_count_, stats_max_ms_, stats_count_, device.c_str(),
-                          graph->frame_index, graph->planes.size(), graph->objects.size());
   }
 
   static ecar::ObjectId idOf(const ecar::VirtualObject& vo) { return vo.id; }
   static ecar::ObjectId idOf(ecar::ObjectId id) { return id; }
 
   ServerConfig config_;
+  VoShareMode share_ = VoShareMode::kGraph;
   std::shared_ptr<ServerContext> ctx_;
   ecar::LocalGraphBuilder builder_;
   ros::Subscriber tracked_sub_;

@@ -4,7 +4,16 @@
 // /<device>/interaction_result: accepted with the object's id and version, or
 // rejected with the store's reason. In vo_attach keyframe mode a registration
 // hangs on the keyframe nearest to the object. A point from rviz's Publish
-// Point tool (/clicked_point, frame "map") registers an ANCHOR owned by "rviz".
+// Point tool (/clicked_point, frame "map") registers an ANCHOR owned by "rviz",
+// and dragging a VO's interactive marker (/ecar/vo_markers) manipulates it as
+// the user "rviz" (VoMarkerServer).
+//
+// Every accepted change's resulting state (tombstones included) is published
+// on /ecar/objects, in version order per object (the timeline measurement
+// tools read). With vo.share "direct" it is also relayed on /<device>/objects
+// to every connected device but the one that made it (local graphs then carry
+// no objects: GraphPublisher).
+#include <atomic>
 #include <limits>
 #include <map>
 #include <memory>
@@ -12,6 +21,7 @@
 
 #include <ecar_msgs/Interaction.h>
 #include <ecar_msgs/InteractionResult.h>
+#include <ecar_msgs/VirtualObject.h>
 #include <geometry_msgs/PointStamped.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
@@ -22,6 +32,7 @@
 #include "ecar_server/conversions.h"
 #include "ecar_server/ros_params.h"
 #include "ecar_server/server_context.h"
+#include "ecar_server/vo_marker_server.h"
 
 namespace ecar_server {
 
@@ -29,6 +40,8 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
  public:
   ~InteractionsNodelet() override {
     clicked_sub_.shutdown();
+    marker_timer_.stop();
+    markers_.reset();
     if (ctx_) ctx_->removeListener(this);
     std::lock_guard<std::mutex> lock(mutex_);
     devices_.clear();
@@ -44,6 +57,9 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
         topics.interaction(), 50,
         [this, name](const ecar_msgs::Interaction::ConstPtr& msg) { onInteraction(name, *msg); },
         ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay());
+    if (share_ == VoShareMode::kDirect) {
+      t.objects = nh.advertise<ecar_msgs::VirtualObject>(topics.objects(), kObjectsQueue);
+    }
     std::lock_guard<std::mutex> lock(mutex_);
     devices_[device.name] = t;
   }
@@ -57,18 +73,50 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
   struct Topics {
     ros::Subscriber sub;
     ros::Publisher result;
+    ros::Publisher objects;  ///< vo_share direct: states relayed to the device
   };
 
   void onInit() override {
     ros::NodeHandle& nh = getMTNodeHandle();
-    ctx_ = ServerContext::get(nh.getNamespace(), loadServerConfig(nh));
+    const ServerConfig config = loadServerConfig(nh);
+    ctx_ = ServerContext::get(nh.getNamespace(), config);
+    share_ = ctx_->config().voShare();
     // Opens the database now: a bad file stops the server at start, naming it.
     const ecar::VoStore& store = ctx_->structure().vos();
     NODELET_INFO("virtual objects: %zu stored (%zu live) in %s, vo_attach %s", store.numObjects(),
                  store.numLive(), store.config().database_path.c_str(),
                  ecar::toString(store.attachMode()));
+    NODELET_INFO("virtual objects: vo_share %s; every change on %s", toString(share_),
+                 kObjectsTopic);
+    objects_pub_ = nh.advertise<ecar_msgs::VirtualObject>(kObjectsTopic, kObjectsQueue);
     ctx_->addListener(this);
     clicked_sub_ = nh.subscribe(kClickedPointTopic, 10, &InteractionsNodelet::onClickedPoint, this);
+    markers_ = std::make_unique<VoMarkerServer>(
+        nh, kVoMarkersTopic, kMapFrame, ctx_->config().vo_marker_drag_rate,
+        [this](ecar::ObjectId id) { return ctx_->structure().vos().get(id); },
+        [this](ecar::ObjectId id, uint32_t base_version, const ecar::VirtualObject& state) {
+          VoRequest request;
+          request.device = kRvizUser;
+          request.type = VoRequest::Type::kManipulate;
+          request.object = id;
+          request.base_version = base_version;
+          request.state = state;
+          return applyAndShare(request);
+        });
+    marker_timer_ = nh.createWallTimer(ros::WallDuration(kMarkerSyncPeriod),
+                                       &InteractionsNodelet::onMarkerTimer, this);
+  }
+
+  // Markers follow the store: at once after changes, and now and then in any
+  // case (the store may change by other means, e.g. a map load).
+  void onMarkerTimer(const ros::WallTimerEvent&) {
+    std::unique_lock<std::mutex> lock(timer_mutex_, std::try_to_lock);
+    if (!lock) return;  // the previous check still runs
+    const uint64_t changes = changes_.load();
+    if (changes == synced_changes_ && ++idle_ticks_ < kMarkerFullSyncTicks) return;
+    idle_ticks_ = 0;
+    synced_changes_ = changes;
+    markers_->sync(ctx_->structure().vos().allObjects());
   }
 
   // rviz's Publish Point tool: a new ANCHOR at the clicked point.
@@ -86,7 +134,7 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
     request.state.g = 200;
     request.state.b = 0;
     request.state.width = 0.1f;
-    const ecar::VoOutcome outcome = apply(request);
+    const ecar::VoOutcome outcome = applyAndShare(request);
     if (outcome.accepted) {
       NODELET_INFO("rviz: object %u registered at (%.2f, %.2f, %.2f)", outcome.id.value,
                    msg->point.x, msg->point.y, msg->point.z);
@@ -112,7 +160,8 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
     } else {
       try {
         request = fromMsg(msg);
-        outcome = apply(request);
+        request.device = device;
+        outcome = applyAndShare(request);
       } catch (const ecar::Error& e) {
         outcome.reason = e.what();
       }
@@ -126,6 +175,28 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
     result->device_id = device;
     result->header.stamp = ros::Time::now();
     pub.publish(result);
+  }
+
+  // Applies a request and shares the accepted change: the object's new state on
+  // /ecar/objects and, with vo_share direct, on /<device>/objects of every
+  // other connected device. Serialised, so an object's states go out in
+  // version order.
+  ecar::VoOutcome applyAndShare(const VoRequest& r) {
+    std::lock_guard<std::mutex> lock(apply_mutex_);
+    const ecar::VoOutcome outcome = apply(r);
+    if (!outcome.accepted) return outcome;
+    ++changes_;
+    const std::optional<ecar::VirtualObject> vo = ctx_->structure().vos().get(outcome.id);
+    if (!vo) return outcome;
+    const auto msg = boost::make_shared<ecar_msgs::VirtualObject>(toMsg(*vo));
+    objects_pub_.publish(msg);
+    if (share_ == VoShareMode::kDirect) {
+      std::lock_guard<std::mutex> devices_lock(mutex_);
+      for (const auto& kv : devices_) {
+        if (kv.first != r.device) kv.second.objects.publish(msg);
+      }
+    }
+    return outcome;
   }
 
   ecar::VoOutcome apply(const VoRequest& r) {
@@ -169,10 +240,26 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
 
   static constexpr const char* kClickedPointTopic = "/clicked_point";
   static constexpr const char* kRvizUser = "rviz";
+  /// Publisher queues of /ecar/objects and /<device>/objects: a burst of drags
+  /// from many devices must not drop states.
+  static constexpr uint32_t kObjectsQueue = 1000;
+  /// s between marker checks; every kMarkerFullSyncTicks-th check syncs even
+  /// without a change seen here.
+  static constexpr double kMarkerSyncPeriod = 0.1;
+  static constexpr int kMarkerFullSyncTicks = 20;
 
   std::shared_ptr<ServerContext> ctx_;
+  VoShareMode share_ = VoShareMode::kGraph;
   ros::Subscriber clicked_sub_;
-  std::mutex mutex_;  // guards devices_
+  ros::Publisher objects_pub_;
+  std::unique_ptr<VoMarkerServer> markers_;
+  ros::WallTimer marker_timer_;
+  std::atomic<uint64_t> changes_{0};  ///< accepted changes made here
+  std::mutex timer_mutex_;            // guards the two below (the marker timer)
+  uint64_t synced_changes_ = 0;
+  int idle_ticks_ = 0;
+  std::mutex apply_mutex_;  // serialises applyAndShare; taken before mutex_
+  std::mutex mutex_;        // guards devices_
   std::map<std::string, Topics> devices_;
 };
 

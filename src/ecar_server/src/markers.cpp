@@ -2,8 +2,11 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 
 #include <geometry_msgs/Point.h>
+#include <visualization_msgs/InteractiveMarkerControl.h>
+#include <Eigen/Geometry>
 
 #include "ecar_core/grid.h"
 
@@ -32,17 +35,32 @@ visualization_msgs::Marker marker(const std::string& ns, int id, int type, const
   return m;
 }
 
+// The orientation taking the unit axis `from` onto the direction `to`.
+geometry_msgs::Quaternion rotationFromTo(const Eigen::Vector3d& from, const Eigen::Vector3d& to) {
+  Eigen::Vector3d dir = to;
+  if (!(dir.norm() > 1e-9) || !dir.allFinite()) dir = from;
+  const Eigen::Quaterniond q = Eigen::Quaterniond::FromTwoVectors(from, dir.normalized());
+  geometry_msgs::Quaternion m;
+  m.x = q.x();
+  m.y = q.y();
+  m.z = q.z();
+  m.w = q.w();
+  return m;
+}
+
 }  // namespace
 
 std_msgs::ColorRGBA deviceColour(ecar::DeviceId id) {
-  static const std::array<std::array<float, 3>, 8> kPalette = {{{0.90f, 0.20f, 0.20f},
-                                                                {0.20f, 0.50f, 0.95f},
-                                                                {0.20f, 0.80f, 0.30f},
-                                                                {0.95f, 0.65f, 0.10f},
-                                                                {0.70f, 0.30f, 0.90f},
-                                                                {0.10f, 0.80f, 0.80f},
-                                                                {0.95f, 0.40f, 0.70f},
-                                                                {0.60f, 0.60f, 0.20f}}};
+  // Unlike the plane label colours (green, blue, yellow, grey), so that a
+  // device's cells stand out on the planes; device ids start at 1.
+  static const std::array<std::array<float, 3>, 8> kPalette = {{{1.00f, 1.00f, 1.00f},
+                                                                {1.00f, 0.25f, 0.20f},
+                                                                {1.00f, 0.55f, 0.00f},
+                                                                {0.95f, 0.25f, 0.85f},
+                                                                {0.10f, 0.90f, 0.95f},
+                                                                {0.60f, 0.35f, 1.00f},
+                                                                {1.00f, 0.65f, 0.75f},
+                                                                {0.65f, 0.40f, 0.15f}}};
   const auto& c = kPalette[id.value % kPalette.size()];
   std_msgs::ColorRGBA colour;
   colour.r = c[0];
@@ -155,12 +173,77 @@ visualization_msgs::MarkerArray structureMarkers(const std::vector<ecar::Plane>&
                         visualization_msgs::Marker::CUBE_LIST, frame, stamp);
     cubes.scale.x = cubes.scale.y = cubes.scale.z = 0.9 * cell_size;
     cubes.color = deviceColour(d.device);
-    cubes.color.a = 0.5f;
+    cubes.color.a = 0.7f;
     cubes.points.reserve(d.cells.size());
     for (const auto& c : d.cells) cubes.points.push_back(toPoint(ecar::cellCenter(c, cell_size)));
     out.markers.push_back(std::move(cubes));
   }
   return out;
+}
+
+std::string voMarkerName(ecar::ObjectId id) { return "vo_" + std::to_string(id.value); }
+
+ecar::ObjectId voMarkerId(const std::string& name) {
+  const std::string prefix = "vo_";
+  if (name.size() <= prefix.size() || name.size() > prefix.size() + 10 ||
+      name.compare(0, prefix.size(), prefix) != 0) {
+    return {};
+  }
+  uint64_t value = 0;
+  for (size_t i = prefix.size(); i < name.size(); ++i) {
+    if (!std::isdigit(static_cast<unsigned char>(name[i]))) return {};
+    value = value * 10 + static_cast<uint64_t>(name[i] - '0');
+  }
+  if (value == 0 || value > 0xFFFFFFFFull) return {};
+  return ecar::ObjectId(static_cast<uint32_t>(value));
+}
+
+visualization_msgs::InteractiveMarker voInteractiveMarker(const ecar::VirtualObject& vo,
+                                                          const std::string& frame) {
+  visualization_msgs::InteractiveMarker im;
+  im.header.frame_id = frame;
+  im.name = voMarkerName(vo.id);
+  im.description = "vo " + std::to_string(vo.id.value);
+  im.pose.position = toPoint(vo.position);
+  im.pose.orientation.w = 1.0;
+  const double length = (vo.end - vo.start).norm();
+  const double size = std::min(0.5, std::max(0.15, length));
+  im.scale = static_cast<float>(size);
+
+  visualization_msgs::Marker disc;
+  disc.type = visualization_msgs::Marker::CYLINDER;  // its axis is its z
+  disc.pose.orientation = rotationFromTo(Eigen::Vector3d::UnitZ(), vo.normal);
+  disc.scale.x = disc.scale.y = size;
+  disc.scale.z = 0.01;
+  disc.color.r = vo.r / 255.0f;
+  disc.color.g = vo.g / 255.0f;
+  disc.color.b = vo.b / 255.0f;
+  disc.color.a = 0.45f;
+
+  visualization_msgs::InteractiveMarkerControl move;
+  move.name = "move_in_plane";
+  move.interaction_mode = visualization_msgs::InteractiveMarkerControl::MOVE_PLANE;
+  move.orientation_mode = visualization_msgs::InteractiveMarkerControl::FIXED;
+  // MOVE_PLANE moves in the plane orthogonal to the control's x axis.
+  move.orientation = rotationFromTo(Eigen::Vector3d::UnitX(), vo.normal);
+  move.always_visible = true;
+  move.markers.push_back(disc);
+  im.controls.push_back(move);
+  return im;
+}
+
+ecar::VirtualObject movedInPlane(const ecar::VirtualObject& vo, const Eigen::Vector3d& p_w) {
+  Eigen::Vector3d d = p_w - vo.position;
+  const double n_norm = vo.normal.norm();
+  if (n_norm > 1e-9) {
+    const Eigen::Vector3d n = vo.normal / n_norm;
+    d -= n.dot(d) * n;
+  }
+  ecar::VirtualObject moved = vo;
+  moved.position += d;
+  moved.start += d;
+  moved.end += d;
+  return moved;
 }
 
 }  // namespace ecar_server

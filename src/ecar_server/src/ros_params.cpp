@@ -120,6 +120,8 @@ ServerConfig loadServerConfig(const ros::NodeHandle& nh) {
   readBounds(nh, "vo/map_min", &v.map_min);
   readBounds(nh, "vo/map_max", &v.map_max);
   read(nh, "vo/map_margin", &c.vo_map_margin);
+  read(nh, "vo/share", &c.vo_share);
+  read(nh, "vo/marker_drag_rate", &c.vo_marker_drag_rate);
   read(nh, "vo/min_line_length", &v.min_line_length);
   read(nh, "vo/max_line_length", &v.max_line_length);
   read(nh, "vo/max_width", &v.max_width);

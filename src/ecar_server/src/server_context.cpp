@@ -23,6 +23,14 @@ bool validDeviceName(const std::string& name) {
 
 }  // namespace
 
+const char* toString(VoShareMode mode) { return mode == VoShareMode::kDirect ? "direct" : "graph"; }
+
+VoShareMode parseVoShareMode(const std::string& text) {
+  if (text == "graph") return VoShareMode::kGraph;
+  if (text == "direct") return VoShareMode::kDirect;
+  throw ecar::Error("unknown vo share mode '" + text + "' (expected 'graph' or 'direct')");
+}
+
 void ServerConfig::validate() const {
   const auto fail = [](const std::string& key, const std::string& why) {
     throw ecar::Error("server parameter '" + key + "' " + why);
@@ -63,6 +71,14 @@ void ServerConfig::validate() const {
   }
   if (vo.database_path.empty()) fail("vo.database", "must not be empty");
   if (!(vo_map_margin >= 0.0)) fail("vo.map_margin", "must be >= 0 m");
+  try {
+    parseVoShareMode(vo_share);
+  } catch (const ecar::Error&) {
+    fail("vo.share", "must be 'graph' or 'direct' (got '" + vo_share + "')");
+  }
+  if (!(vo_marker_drag_rate >= 0.0) || vo_marker_drag_rate > 100.0) {
+    fail("vo.marker_drag_rate", "must be in [0, 100] Hz");
+  }
 }
 
 ecar::SlamConfig ServerConfig::slamConfig() const {

@@ -45,6 +45,17 @@ message naming the file while the server keeps serving; a load of the good
 file moves the map epoch on and the device is aligned the same again. After a
 kill -9, the object is in the new server's database.
 
+~scenario "share": the test starts server.launch with vo_share:=direct. Two
+fake devices upload the same images; device_0 registers a line on the floor.
+Asserts: device_1 receives its state on /device_1/objects and device_0 gets
+nothing of its own change on /device_0/objects; no local graph carries objects;
+/ecar/objects carries every accepted version in order (tombstone included). An
+InteractiveMarkerFeedback (MOUSE_UP, a new pose) on /ecar/vo_markers/feedback
+moves the object by the in-plane part of the marker's move (within 1 mm) at the
+next version, relayed to both devices; feedback naming no marker is ignored
+with a warning and the server keeps answering (a DELETE from device_1 then
+reaches device_0 only).
+
 Prints the measured figures (bytes, bytes per point, server time).
 """
 
@@ -74,6 +85,7 @@ import rosgraph
 from ecar_msgs.msg import Interaction, InteractionResult, LocalGraph, Plane, Upload, VirtualObject
 from ecar_msgs.srv import Connect, ConnectRequest, LoadMap, SaveMap
 from geometry_msgs.msg import PointStamped
+from visualization_msgs.msg import InteractiveMarkerFeedback, InteractiveMarkerUpdate
 from rosgraph_msgs.msg import Log
 from sensor_msgs.msg import CameraInfo
 
@@ -314,11 +326,12 @@ def floor_line(graph, plane, camera, u, v, half_length=0.2):
 class Server:
     """server.launch run by the test (so that it can kill -9 it)."""
 
-    def __init__(self, database, vo_attach="grid", map_file=""):
+    def __init__(self, database, vo_attach="grid", map_file="", vo_share="graph"):
         root = os.path.join(rospkg.RosPack().get_path("ecar_server"), "..", "..")
         self.proc = subprocess.Popen(
             ["roslaunch", os.path.join(root, "launch", "server.launch"), "output:=log",
-             "database:=" + database, "vo_attach:=" + vo_attach, "map:=" + map_file],
+             "database:=" + database, "vo_attach:=" + vo_attach, "map:=" + map_file,
+             "vo_share:=" + vo_share],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
     def manager_pid(self):
@@ -440,6 +453,8 @@ class ServerTest(unittest.TestCase):
             self.run_vo()
         elif scenario == "map":
             self.run_map()
+        elif scenario == "share":
+            self.run_share()
         else:
             self.run_bad_input()
 
@@ -855,6 +870,175 @@ class ServerTest(unittest.TestCase):
         finally:
             db.close()
         self.assertEqual(rows, [(1, 0)], "the loaded object is not in the database")
+
+    def run_share(self):
+        folder = tempfile.mkdtemp(prefix="ecar_share_test_")
+        server = Server(os.path.join(folder, "vo.sqlite"), vo_share="direct")
+        try:
+            self.share_session()
+        finally:
+            server.stop()
+            shutil.rmtree(folder, ignore_errors=True)
+
+    def share_session(self):
+        received = collections.defaultdict(list)  # topic -> [VirtualObject]
+        markers = {}  # interactive marker name -> pose
+        cond = threading.Condition()
+
+        def keep(topic):
+            def cb(msg):
+                with cond:
+                    received[topic].append(msg)
+                    cond.notify_all()
+            return cb
+
+        def on_markers(msg):
+            with cond:
+                for m in getattr(msg, "markers", []):
+                    markers[m.name] = m.pose
+                for p in getattr(msg, "poses", []):
+                    markers[p.name] = p.pose
+                for name in getattr(msg, "erases", []):
+                    markers.pop(name, None)
+                cond.notify_all()
+
+        def wait_for(predicate, timeout=10.0):
+            end = time.time() + timeout
+            with cond:
+                while not predicate() and time.time() < end:
+                    cond.wait(0.05)
+                return predicate()
+
+        def versions(topic, vo_id):
+            return [(o.version, o.deleted) for o in received[topic] if o.id == vo_id]
+
+        subs = [rospy.Subscriber(t, VirtualObject, keep(t), queue_size=100)
+                for t in ("/ecar/objects", "/device_0/objects", "/device_1/objects")]
+        subs.append(rospy.Subscriber("/ecar/vo_markers/update", InteractiveMarkerUpdate,
+                                     on_markers, queue_size=100))
+        a = FakeDevice("device_0", self.dataset)
+        b = FakeDevice("device_1", self.dataset)
+        for d in (a, b):
+            self.assertTrue(d.connect().accepted)
+            self.assertTrue(wait_subscribed(d.pub))
+        good = list(range(0, len(self.dataset.frames), self.every))
+        first, second = good[:len(good) * 2 // 3], good[len(good) * 2 // 3:]
+        for k, i in enumerate(first):
+            for d in (a, b):
+                d.upload(i, reset=(k == 0))
+                self.assertIsNotNone(d.wait_graph(i), "%s: no local graph for %d" % (d.name, i))
+        tracked = [a.graphs[i][0] for i in first if a.graphs[i][0].status in TRACKED]
+        self.assertTrue(tracked, "never tracked")
+        floors = {}
+        for g in tracked:
+            for p in g.planes:
+                if p.label == Plane.FLOOR:
+                    floors[p.id] = p
+        self.assertTrue(floors, "no FLOOR plane in the local graphs")
+        floor = max(floors.values(), key=lambda p: p.num_points)
+        obj = floor_line(tracked[-1], floor, self.dataset.camera, 319.5, 400.0)
+        self.assertIsNotNone(obj)
+
+        # Direct: device_1 gets the state, device_0 (the author) does not.
+        res = a.interact(1, Interaction.REGISTER, obj)
+        self.assertTrue(res is not None and res.accepted, res and res.reason)
+        vo_id = res.object_id
+        self.assertTrue(wait_for(lambda: versions("/device_1/objects", vo_id) == [(1, False)]),
+                        "device_1 did not receive the registration: %s"
+                        % versions("/device_1/objects", vo_id))
+        self.assertTrue(wait_for(lambda: versions("/ecar/objects", vo_id) == [(1, False)]))
+        got = next(o for o in received["/device_1/objects"] if o.id == vo_id)
+        self.assertEqual(got.owner, "device_0")
+        self.assertLess(math.dist((got.start.x, got.start.y, got.start.z),
+                                  (obj.start.x, obj.start.y, obj.start.z)), 1e-6)
+
+        # Local graphs carry no objects in direct mode.
+        for k, i in enumerate(second):
+            for d in (a, b):
+                d.upload(i)
+                self.assertIsNotNone(d.wait_graph(i), "%s: no local graph for %d" % (d.name, i))
+        for d in (a, b):
+            with_objects = [i for i, (m, _) in d.graphs.items() if m.objects]
+            self.assertEqual(with_objects, [], "%s: graphs with objects" % d.name)
+            self.assertTrue(any(d.graphs[i][0].status in TRACKED for i in second),
+                            "%s never tracked after the registration" % d.name)
+        self.assertEqual(versions("/device_0/objects", vo_id), [])
+
+        # rviz: the object's interactive marker, moved by a MOUSE_UP feedback.
+        name = "vo_%d" % vo_id
+        self.assertTrue(wait_for(lambda: name in markers), "no interactive marker %s" % name)
+        pose = markers[name]
+        self.assertLess(math.dist((pose.position.x, pose.position.y, pose.position.z),
+                                  (got.position.x, got.position.y, got.position.z)), 1e-6)
+        feedback_pub = rospy.Publisher("/ecar/vo_markers/feedback", InteractiveMarkerFeedback,
+                                       queue_size=10)
+        # (The marker server and the name check share the manager's one connection.)
+        self.assertTrue(wait_subscribed(feedback_pub))
+        time.sleep(0.3)
+        n = (got.normal.x, got.normal.y, got.normal.z)
+        along = [got.end.x - got.start.x, got.end.y - got.start.y, got.end.z - got.start.z]
+        along = [c / math.sqrt(dot(along, along)) for c in along]
+        across = [n[1] * along[2] - n[2] * along[1], n[2] * along[0] - n[0] * along[2],
+                  n[0] * along[1] - n[1] * along[0]]
+        move = [0.3 * along[k] + 0.2 * across[k] for k in range(3)]  # in the floor plane
+        off = 0.05  # and 5 cm off it, which the server drops
+        fb = InteractiveMarkerFeedback()
+        fb.header.frame_id = "map"
+        fb.header.stamp = rospy.Time.now()
+        fb.client_id = "/fake_device_test"
+        fb.marker_name = name
+        fb.control_name = "move_in_plane"
+        fb.event_type = InteractiveMarkerFeedback.MOUSE_UP
+        fb.pose.position.x = got.position.x + move[0] + off * n[0]
+        fb.pose.position.y = got.position.y + move[1] + off * n[1]
+        fb.pose.position.z = got.position.z + move[2] + off * n[2]
+        fb.pose.orientation.w = 1.0
+        feedback_pub.publish(fb)
+        self.assertTrue(wait_for(lambda: [v for v, _ in versions("/ecar/objects", vo_id)] == [1, 2]),
+                        "no version 2 from the marker: %s" % versions("/ecar/objects", vo_id))
+        moved = [o for o in received["/ecar/objects"] if o.id == vo_id][-1]
+        for field in ("position", "start", "end"):
+            before, after = getattr(got, field), getattr(moved, field)
+            delta = (after.x - before.x, after.y - before.y, after.z - before.z)
+            self.assertLess(math.dist(delta, move), 1e-3, "%s moved by %s, not %s"
+                            % (field, delta, move))
+        self.assertEqual(moved.owner, "device_0")
+        for topic in ("/device_0/objects", "/device_1/objects"):
+            self.assertTrue(wait_for(lambda: (2, False) in versions(topic, vo_id)),
+                            "%s did not receive the rviz move" % topic)
+        self.assertTrue(wait_for(lambda: math.dist(
+            (markers[name].position.x, markers[name].position.y, markers[name].position.z),
+            (moved.position.x, moved.position.y, moved.position.z)) < 1e-6),
+            "the marker did not follow the object")
+        print("[share] marker move: %.3f m asked in the plane (+%.2f m off it), moved %.4f m"
+              % (math.sqrt(dot(move, move)), off,
+                 math.dist((moved.position.x, moved.position.y, moved.position.z),
+                           (got.position.x, got.position.y, got.position.z))))
+
+        # Feedback naming no marker: a warning, nothing changes, the server still answers.
+        for bogus in ("vo_9999", "not_a_vo"):
+            fb.marker_name = bogus
+            fb.header.stamp = rospy.Time.now()
+            feedback_pub.publish(fb)
+        self.assertTrue(wait_for(lambda: self.warned("unknown interactive marker", "vo_9999")),
+                        "no warning for the unknown marker")
+        res = b.interact(1, Interaction.DELETE, VirtualObject(), object_id=vo_id, base_version=2)
+        self.assertTrue(res is not None and res.accepted, res and res.reason)
+        self.assertEqual(res.version, 3)
+        self.assertTrue(wait_for(lambda: (3, True) in versions("/device_0/objects", vo_id)),
+                        "device_0 did not receive the tombstone")
+        self.assertTrue(wait_for(lambda: versions("/ecar/objects", vo_id)
+                                 == [(1, False), (2, False), (3, True)]),
+                        "/ecar/objects: %s" % versions("/ecar/objects", vo_id))
+        self.assertTrue(wait_for(lambda: name not in markers), "the marker of a tombstone stays")
+        time.sleep(0.3)
+        self.assertNotIn((3, True), versions("/device_1/objects", vo_id))
+        self.assertEqual(len(received["/ecar/objects"]), 3, "changes from the bogus feedback")
+        print("[share] /ecar/objects: %s; device_0 got %s, device_1 got %s"
+              % (versions("/ecar/objects", vo_id), versions("/device_0/objects", vo_id),
+                 versions("/device_1/objects", vo_id)))
+        for s in subs:
+            s.unregister()
 
 
 if __name__ == "__main__":

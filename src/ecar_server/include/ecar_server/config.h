@@ -13,6 +13,17 @@
 
 namespace ecar_server {
 
+/// How VO changes reach devices (yaml vo.share).
+enum class VoShareMode {
+  kGraph = 0,   ///< eCAR: in the local graphs of the devices that see them
+  kDirect = 1,  ///< baseline: each accepted change straight to every other connected device
+};
+
+/// "graph" or "direct".
+const char* toString(VoShareMode mode);
+/// Parses "graph" / "direct"; throws ecar::Error naming the value otherwise.
+VoShareMode parseVoShareMode(const std::string& text);
+
 struct ServerConfig {
   /// Default sync mode for devices whose Connect names none: "ecar" or "edgeslam".
   std::string sync_mode = "ecar";
@@ -59,6 +70,13 @@ struct ServerConfig {
   ecar::VoStoreConfig vo = defaultVoConfig();
   /// m: the VO map bounds are the keyframe centres' bounding box grown by this.
   double vo_map_margin = 10.0;
+  /// vo.share: "graph" (VOs ride in local graphs) or "direct" (each accepted
+  /// change is relayed on /<device>/objects to every other connected device,
+  /// and local graphs carry no VOs).
+  std::string vo_share = "graph";
+  /// vo.marker_drag_rate, Hz: MANIPULATEs sent while an rviz interactive
+  /// marker is dragged (the final one is sent on mouse-up); 0 = mouse-up only.
+  double vo_marker_drag_rate = 5.0;
   /// Besides the planes hit from the aligned pose, a local graph carries the
   /// planes linked to the frame's local keyframes.
   bool graph_keyframe_planes = true;
@@ -70,6 +88,7 @@ struct ServerConfig {
   /// Throws ecar::Error naming the first invalid key.
   void validate() const;
   ecar::SyncMode syncMode() const { return ecar::parseSyncMode(sync_mode); }
+  VoShareMode voShare() const { return parseVoShareMode(vo_share); }
   /// SLAM options (mapping on its own thread).
   ecar::SlamConfig slamConfig() const;
   ecar::LocalGraphConfig localGraphConfig() const;

@@ -19,6 +19,8 @@ struct DeviceTopicNames {
   std::string localGraph() const { return "/" + device + "/local_graph"; }
   std::string interaction() const { return "/" + device + "/interaction"; }
   std::string interactionResult() const { return "/" + device + "/interaction_result"; }
+  /// vo_share direct: VO states relayed to the device (its ~direct_objects_topic).
+  std::string objects() const { return "/" + device + "/objects"; }
   std::string cameraServerFrame() const { return device + "/camera_server"; }
 };
 
@@ -28,6 +30,10 @@ constexpr const char* kDisconnectService = "/ecar/disconnect";
 constexpr const char* kTrackedFrameTopic = "/ecar/tracked_frame";
 constexpr const char* kKeyFrameMappedTopic = "/ecar/keyframe_mapped";
 constexpr const char* kMarkersTopic = "/ecar/markers";
+/// Every accepted VO change (the state after it, tombstones included), in order.
+constexpr const char* kObjectsTopic = "/ecar/objects";
+/// Namespace of the interactive marker server of the VOs (rviz InteractiveMarkers display).
+constexpr const char* kVoMarkersTopic = "/ecar/vo_markers";
 constexpr const char* kMapFrame = "map";
 
 /// Seconds on a monotonic clock (device timeouts).

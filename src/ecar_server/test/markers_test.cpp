@@ -1,0 +1,117 @@
+// The interactive markers of virtual objects: marker names, the MOVE_PLANE
+// control's plane, and moves projected into the object's plane; and the
+// vo.share mode parsing.
+#include "ecar_server/markers.h"
+
+#include <gtest/gtest.h>
+#include <Eigen/Geometry>
+
+#include "ecar_core/error.h"
+#include "ecar_server/config.h"
+
+namespace ecar_server {
+namespace {
+
+Eigen::Quaterniond quat(const geometry_msgs::Quaternion& q) {
+  return Eigen::Quaterniond(q.w, q.x, q.y, q.z);
+}
+
+ecar::VirtualObject wallLine() {
+  ecar::VirtualObject vo;
+  vo.id = ecar::ObjectId(42);
+  vo.kind = ecar::VoKind::kLine;
+  vo.start = Eigen::Vector3d(1.0, 2.0, 1.0);
+  vo.end = Eigen::Vector3d(1.0, 2.6, 1.0);  // 0.6 m along y on the wall x = 1
+  vo.position = 0.5 * (vo.start + vo.end);
+  vo.normal = -Eigen::Vector3d::UnitX();
+  vo.r = 255;
+  vo.g = 0;
+  vo.b = 51;
+  vo.version = 3;
+  return vo;
+}
+
+TEST(VoMarkers, NameRoundTrip) {
+  EXPECT_EQ(voMarkerName(ecar::ObjectId(7)), "vo_7");
+  EXPECT_EQ(voMarkerId("vo_7"), ecar::ObjectId(7));
+  EXPECT_EQ(voMarkerId(voMarkerName(ecar::ObjectId(4294967295u))), ecar::ObjectId(4294967295u));
+  for (const char* bad : {"", "vo_", "vo_0", "vo_x1", "vo_1a", "obj_3", "vo_4294967296",
+                          "vo_99999999999", "VO_3", "vo_-1"}) {
+    EXPECT_FALSE(voMarkerId(bad).valid()) << bad;
+  }
+}
+
+TEST(VoMarkers, MovePlaneControlIsTheObjectsPlane) {
+  const ecar::VirtualObject vo = wallLine();
+  const visualization_msgs::InteractiveMarker im = voInteractiveMarker(vo, "map");
+  EXPECT_EQ(im.name, "vo_42");
+  EXPECT_EQ(im.header.frame_id, "map");
+  EXPECT_DOUBLE_EQ(im.pose.position.x, 1.0);
+  EXPECT_DOUBLE_EQ(im.pose.position.y, 2.3);
+  EXPECT_DOUBLE_EQ(im.pose.position.z, 1.0);
+  EXPECT_DOUBLE_EQ(im.pose.orientation.w, 1.0);
+  ASSERT_EQ(im.controls.size(), 1u);
+  const auto& c = im.controls[0];
+  EXPECT_EQ(c.interaction_mode, visualization_msgs::InteractiveMarkerControl::MOVE_PLANE);
+  EXPECT_TRUE(c.always_visible);
+  // MOVE_PLANE moves orthogonally to the control's x axis: that is the normal.
+  const Eigen::Vector3d x = quat(c.orientation) * Eigen::Vector3d::UnitX();
+  EXPECT_NEAR((x - vo.normal).norm(), 0.0, 1e-9);
+  EXPECT_NEAR(quat(c.orientation).norm(), 1.0, 1e-9);
+  ASSERT_EQ(c.markers.size(), 1u);
+  const auto& disc = c.markers[0];
+  EXPECT_EQ(disc.type, visualization_msgs::Marker::CYLINDER);
+  const Eigen::Vector3d axis = quat(disc.pose.orientation) * Eigen::Vector3d::UnitZ();
+  EXPECT_NEAR((axis - vo.normal).norm(), 0.0, 1e-9);
+  EXPECT_NEAR(disc.scale.x, 0.5, 1e-9);  // the line's length (0.6 m) capped at 0.5 m
+  EXPECT_FLOAT_EQ(disc.color.r, 1.0f);
+  EXPECT_FLOAT_EQ(disc.color.b, 0.2f);
+}
+
+TEST(VoMarkers, FloorNormalAndDegenerateNormal) {
+  ecar::VirtualObject vo = wallLine();
+  vo.normal = Eigen::Vector3d::UnitZ();
+  const auto im = voInteractiveMarker(vo, "map");
+  const Eigen::Vector3d x = quat(im.controls[0].orientation) * Eigen::Vector3d::UnitX();
+  EXPECT_NEAR((x - Eigen::Vector3d::UnitZ()).norm(), 0.0, 1e-9);
+  vo.normal = -Eigen::Vector3d::UnitX();  // opposite of the control's own x axis
+  const auto flipped = voInteractiveMarker(vo, "map");
+  const Eigen::Vector3d fx = quat(flipped.controls[0].orientation) * Eigen::Vector3d::UnitX();
+  EXPECT_NEAR((fx + Eigen::Vector3d::UnitX()).norm(), 0.0, 1e-9);
+}
+
+TEST(VoMarkers, MoveKeepsTheObjectInItsPlane) {
+  const ecar::VirtualObject vo = wallLine();
+  // Dragged 0.3 m along y, 0.2 m up, and 0.1 m off the wall: the off-wall part is dropped.
+  const ecar::VirtualObject moved = movedInPlane(vo, vo.position + Eigen::Vector3d(-0.1, 0.3, 0.2));
+  const Eigen::Vector3d d(0.0, 0.3, 0.2);
+  EXPECT_NEAR((moved.position - (vo.position + d)).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((moved.start - (vo.start + d)).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((moved.end - (vo.end + d)).norm(), 0.0, 1e-12);
+  EXPECT_EQ(moved.id, vo.id);
+  EXPECT_EQ(moved.version, vo.version);
+  EXPECT_EQ(moved.r, vo.r);
+  EXPECT_TRUE(moved.normal.isApprox(vo.normal));
+}
+
+TEST(VoShare, ParsesAndValidates) {
+  EXPECT_EQ(parseVoShareMode("graph"), VoShareMode::kGraph);
+  EXPECT_EQ(parseVoShareMode("direct"), VoShareMode::kDirect);
+  EXPECT_STREQ(toString(VoShareMode::kDirect), "direct");
+  EXPECT_THROW(parseVoShareMode("broadcast"), ecar::Error);
+  ServerConfig c;
+  EXPECT_EQ(c.voShare(), VoShareMode::kGraph);
+  c.vo_share = "broadcast";
+  try {
+    c.validate();
+    FAIL() << "vo.share 'broadcast' accepted";
+  } catch (const ecar::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("vo.share"), std::string::npos) << e.what();
+  }
+  c.vo_share = "direct";
+  c.vo_marker_drag_rate = -1.0;
+  EXPECT_THROW(c.validate(), ecar::Error);
+}
+
+}  // namespace
+}  // namespace ecar_server
