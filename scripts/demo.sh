@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Installs what is missing, builds, and runs eCAR's main job: the edge server and
-# two devices walking the synthetic corridor (device_0 from one end, device_1
-# from the other), each device fed by its rendered dataset, headless; then
-# prints the session summary (uploads, local graphs, device tracking, device-vs-
-# server error, ATE, local graph bytes, latency). Outputs in out/demo/.
+# two devices in the synthetic corridor, each fed by its rendered dataset,
+# headless: device_0 walks down the corridor and draws lines on the floor and a
+# wall by its scripted touches, then carries one along; device_2 zig-zags in the
+# first third and receives them. Prints the session summary (uploads, local
+# graphs, device tracking, device-vs-server error, ATE, local graph bytes,
+# latency, VO sync against ground truth). Outputs in out/demo/.
 #
 # Usage: scripts/demo.sh [--frames N] [--sync-mode ecar|edgeslam] [--gui]
 #   --frames N   frames per device (default 400; 0 = the whole 30 m walk)
@@ -19,7 +21,7 @@ while [[ $# -gt 0 ]]; do
     --frames) FRAMES="$2"; shift 2 ;;
     --sync-mode) SYNC="$2"; shift 2 ;;
     --gui) GUI=1; shift ;;
-    -h|--help) sed -n '2,11p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
     *) echo "demo.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -43,6 +45,6 @@ if [[ $GUI == 1 ]]; then
   exec roslaunch launch/demo.launch datasets:="$DATA" suffix:="$SUFFIX" sync_mode:="$SYNC"
 fi
 
-echo "[demo] server + device_0 and device_1 on the synthetic corridor ($SYNC mode), headless"
-rosrun ecar_sim run_session --scene config/scenes/corridor.yaml --devices 2 \
+echo "[demo] server + device_0 and device_2 on the synthetic corridor ($SYNC mode), headless"
+rosrun ecar_sim run_session --scene config/scenes/corridor.yaml --device-names device_0,device_2 \
   --frames "$FRAMES" --sync-mode "$SYNC" --datasets "$DATA" --out "$ROOT/out/demo/session"

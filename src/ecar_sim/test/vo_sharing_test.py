@@ -3,14 +3,16 @@
 # first on PATH has no rospy.)
 """End to end (started by test/vo_sharing.test): one device draws, another far away receives.
 
-Renders the first frames of corridor device_0 (which draws a line on the floor at x = 7.5 and one
-on the left wall at x = 8.5 by its scripted touches) and of device_1 (which starts 22 m away at
-the far end, looking back), plays both through the real server and devices, and asserts that
-- device_0's touches became accepted REGISTERs (no rejections);
+Renders test/vo_far_scene.yaml: `drawer` walks 11 m down the corridor and draws, by its scripted
+touches, a line across the floor at x = 15 and one on the left wall at x = 16.5; `receiver` stays
+near the start, 12-15 m from them. Plays both through the real server and devices and asserts
+that
+- the drawer's touches became accepted REGISTERs (no rejections);
 - the VOs lie where the user touched, on the floor and on the wall, in the world (map -> world
   by the similarity fit of the server's poses to the ground truth), within 10 cm;
-- device_1 held every VO that its ground-truth view showed (at the version accepted two round
-  trips before), first from more than 15 m away, and the VO metrics of run_session agree.
+- the receiver held every VO its ground-truth view showed (at the version accepted two of its
+  round trips before; ecar_sim.vo_metrics, as run_session measures it), from 10 m and more away,
+  and where the two devices draw them agrees within 5 cm.
 
 Private params: ~scene, ~player_launch, ~frames.
 """
@@ -33,7 +35,7 @@ from ecar_sim import vo_metrics as vm
 from std_msgs.msg import Bool
 
 PKG = "ecar_sim"
-DEVICES = ["device_0", "device_1"]
+DEVICES = ["drawer", "receiver"]
 
 
 def read_groundtruth(folder):
@@ -109,10 +111,10 @@ class VoSharingTest(unittest.TestCase):
 
     def test_stroke_reaches_a_device_far_along_the_corridor(self):
         datasets = {d: self.render(d) for d in DEVICES}
-        self.assertTrue(os.path.exists(os.path.join(datasets["device_0"], "touches.txt")),
-                        "device_0's dataset has no touches.txt")
+        self.assertTrue(os.path.exists(os.path.join(datasets["drawer"], "touches.txt")),
+                        "the drawer's dataset has no touches.txt")
         rospy.Subscriber("/ecar/objects", VirtualObject, self.on_object, queue_size=1000)
-        rospy.Subscriber("/device_0/interaction_result", InteractionResult, self.on_result,
+        rospy.Subscriber("/drawer/interaction_result", InteractionResult, self.on_result,
                          queue_size=1000)
         for d in DEVICES:
             rospy.Subscriber("/%s/device_frame" % d, DeviceFrame, self.on_frame, queue_size=500)
@@ -152,10 +154,10 @@ class VoSharingTest(unittest.TestCase):
                 camera = vm.Camera.from_yaml(yaml.safe_load(f))
             records.append(vm.DeviceRecord(d, camera, self.device_frames[d], gt,
                                            self.graph_walls[d]))
-        self.assertGreater(len(self.server["device_1"]), 5, "device_1 never joined the map")
+        self.assertGreater(len(self.server["receiver"]), 5, "the receiver never joined the map")
         sim = vm.Similarity(*vm.umeyama(src, dst))
 
-        # Each VO where it was drawn: floor line at x = 7.5, wall line at y = 2.4, x = 8.5.
+        # Each VO where it was drawn: floor line at x = 15, wall line at y = 2.4, x = 16.5.
         latest = {}
         for _, m in self.objects:
             latest[m.id] = m
@@ -164,16 +166,16 @@ class VoSharingTest(unittest.TestCase):
             p = sim.apply((m.position.x, m.position.y, m.position.z))
             if abs(p[2]) < 0.1:
                 floor += 1
-                self.assertLess(abs(p[0] - 7.5), 0.1, "floor VO %d at %s" % (m.id, p))
+                self.assertLess(abs(p[0] - 15.0), 0.1, "floor VO %d at %s" % (m.id, p))
             else:
                 wall += 1
                 self.assertLess(abs(p[1] - 2.4), 0.1, "wall VO %d at %s" % (m.id, p))
-                self.assertLess(abs(p[0] - 8.5), 0.1, "wall VO %d at %s" % (m.id, p))
+                self.assertLess(abs(p[0] - 16.5), 0.1, "wall VO %d at %s" % (m.id, p))
                 self.assertTrue(0.8 < p[2] < 1.6, "wall VO %d at %s" % (m.id, p))
         self.assertGreater(floor, 5, "VOs on the floor: %d" % floor)
         self.assertGreater(wall, 3, "VOs on the wall: %d" % wall)
 
-        # device_1 held them while far away.
+        # The receiver held them while far away.
         states = [vm.VoState(m.id, m.version, m.deleted, m.owner, m.kind,
                              (m.position.x, m.position.y, m.position.z),
                              (m.start.x, m.start.y, m.start.z), (m.end.x, m.end.y, m.end.z), w)
@@ -184,13 +186,13 @@ class VoSharingTest(unittest.TestCase):
         rospy.loginfo("VO metrics: %s", {k: result[k] for k in (
             "objects", "success", "success_other_devices", "by_distance", "latency",
             "position_agreement")})
-        d1 = result["by_device"]["device_1"]
-        self.assertGreater(d1["expected"], 50, "device_1 was expected to see VOs on %d frames" %
-                           d1["expected"])
-        self.assertGreaterEqual(d1["success"], 0.95, "device_1 held the VOs on %s of frames" %
+        d1 = result["by_device"]["receiver"]
+        self.assertGreater(d1["expected"], 50, "the receiver was expected to see VOs on %d frames"
+                           % d1["expected"])
+        self.assertGreaterEqual(d1["success"], 0.95, "the receiver held the VOs on %s of frames" %
                                 d1["success"])
-        far = [b for b in result["by_distance"] if float(b["bin"].split("-")[0]) >= 16.0]
-        self.assertTrue(far, "no frames of device_1 16 m or more from a VO: %s" %
+        far = [b for b in result["by_distance"] if float(b["bin"].split("-")[0]) >= 10.0]
+        self.assertTrue(far, "no frames of the receiver 10 m or more from a VO: %s" %
                         result["by_distance"])
         for b in far:
             self.assertGreaterEqual(b["success"], 0.95, "bin %s" % b)
