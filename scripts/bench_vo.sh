@@ -47,9 +47,9 @@ names = ["corridor_grid", "corridor_keyframe", "corridor_direct", "room_grid", "
          "room_direct"]
 f = lambda x, k=100.0, n=1: "n/a" if x is None else "%.*f" % (n, x * k)
 lines = ["# VO benchmarks (scripts/bench_vo.sh)", ""]
-summary = ["| run | objects / changes | success (all frames) | success (other devices) | "
+summary = ["| run | objects / changes | success (all frames) | strict | success (other devices) | "
            "change -> held median ms / round trips | max round trips | within 2 round trips | "
-           "position agreement max cm | playback rate |", "|" + "---|" * 9]
+           "position agreement max cm (all / views within 10 m) | playback rate |", "|" + "---|" * 10]
 bins = {}
 for name in names:
     path = os.path.join(out, name, "summary.json")
@@ -58,14 +58,17 @@ for name in names:
     s = json.load(open(path))
     vo = s.get("vo")
     if not vo:
-        summary.append("| %s | no VOs | | | | | | | |" % name)
+        summary.append("| %s | no VOs | | | | | | | | |" % name)
         continue
     lat = vo["latency"]
-    summary.append("| %s | %d / %d | %s | %s | %s / %s | %s | %s | %s | %s |" % (
-        name, vo["objects"], vo["changes"], f(vo["success"]), f(vo["success_other_devices"]),
+    summary.append("| %s | %d / %d | %s | %s | %s | %s / %s | %s | %s | %s | %s |" % (
+        name, vo["objects"], vo["changes"], f(vo["success"]), f(vo.get("success_strict")),
+        f(vo["success_other_devices"]),
         f(lat["median_ms"], 1, 0), f(lat["median_round_trips"], 1, 2),
         f(lat["max_round_trips"], 1, 2), f(lat["within_two_round_trips"]),
-        f(vo["position_agreement"]["max_m"], 100, 2), f(s["pacing"]["achieved_rate"], 1, 2)))
+        f(vo["position_agreement"]["max_m"], 100, 2) + " / " +
+        f(vo["position_agreement"].get("near_max_m"), 100, 2),
+        f(s["pacing"]["achieved_rate"], 1, 2)))
     key = "by_distance" if name.startswith("corridor") else "by_angle"
     for b in vo[key]:
         bins.setdefault(key, {}).setdefault(b["bin"], {})[name] = b

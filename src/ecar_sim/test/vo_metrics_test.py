@@ -137,9 +137,32 @@ class SuccessTest(unittest.TestCase):
                         line(1, 2, [6.0, 1.2, 0.0], wall=0.0),
                         line(1, 3, [6.0, 1.2, 0.0], wall=1.4, deleted=True)])
         d1 = r["by_device"]["device_1"]
-        # Frame 0 (wall 0): version 1 expected and held; frame 1 (wall 1): version 2 expected,
-        # not held; frame 2 (wall 2): the tombstone from wall 1.4 is older than the grace (0.5 s).
-        self.assertEqual((d1["held"], d1["expected"]), (1, 2))
+        # Frame 0 (wall 0): version 1 visible and held, but there is no frame a grace (0.5 s)
+        # earlier, so it counts only in the strict rate; frame 1 (wall 1): version 2 expected,
+        # not held; frame 2 (wall 2): the tombstone from wall 1.4 is older than the grace.
+        self.assertEqual((d1["held"], d1["expected"]), (0, 1))
+        self.assertEqual(d1["success_strict"], 0.5)
+
+    def test_what_just_came_into_view_is_not_yet_expected(self):
+        s = Session()
+        s.device("device_0", [0.5] * 2, lambda f: {})
+        # device_1 turns round: the VO at x = 6 is behind it on frame 0, in view from frame 1;
+        # it holds it from frame 2 (its first graph after seeing it).
+        frames = [(5.0, -1.0), (0.5, 1.0), (0.6, 1.0), (0.7, 1.0)]
+        held = lambda f: {1: 1} if f >= 2 else {}
+        record = {}
+        gt = {}
+        for f, (x, sign) in enumerate(frames):
+            T = looking_along_x(x, sign=sign)
+            gt[f] = T
+            record[f] = (float(f), 1, tuple(T[:3, 3]), rot_to_quat(T[:3, :3]), held(f))
+        s.devices.append(vm.DeviceRecord("device_1", CAMERA, record, gt,
+                                         [0.25 * k for k in range(16)]))
+        r = s.evaluate([line(1, 1, [6.0, 1.2, 0.0], wall=-10.0)])
+        d1 = r["by_device"]["device_1"]
+        # Frame 1: in view, but not on frame 0 (0.5 s earlier): not expected; frames 2, 3: held.
+        self.assertEqual((d1["held"], d1["expected"]), (2, 2))
+        self.assertAlmostEqual(d1["success_strict"], round(2 / 3, 4))
 
 
 class LatencyAndAgreementTest(unittest.TestCase):
@@ -171,6 +194,9 @@ class LatencyAndAgreementTest(unittest.TestCase):
         self.assertEqual(r["success"], 1.0)
         self.assertEqual(r["position_agreement"]["pairs"], 1)
         self.assertAlmostEqual(r["position_agreement"]["max_m"], 0.01, places=4)
+        # Both see it from about 5 m: the near-view agreement is the same pair.
+        self.assertEqual(r["position_agreement"]["near_pairs"], 1)
+        self.assertAlmostEqual(r["position_agreement"]["near_max_m"], 0.01, places=4)
         np.testing.assert_allclose(r["objects_detail"][0]["world_position"], world, atol=1e-3)
 
 

@@ -157,7 +157,9 @@ class VoSharingTest(unittest.TestCase):
         self.assertGreater(len(self.server["receiver"]), 5, "the receiver never joined the map")
         sim = vm.Similarity(*vm.umeyama(src, dst))
 
-        # Each VO where it was drawn: floor line at x = 15, wall line at y = 2.4, x = 16.5.
+        # Each VO where it was drawn: floor line at x = 15, wall line at y = 2.4, x = 16.5. Along
+        # the corridor the tolerance is wider on the wall: the touch ray meets it at about 15
+        # degrees, so a 4 cm error of the wall plane moves the hit 15 cm along it.
         latest = {}
         for _, m in self.objects:
             latest[m.id] = m
@@ -169,8 +171,8 @@ class VoSharingTest(unittest.TestCase):
                 self.assertLess(abs(p[0] - 15.0), 0.1, "floor VO %d at %s" % (m.id, p))
             else:
                 wall += 1
-                self.assertLess(abs(p[1] - 2.4), 0.1, "wall VO %d at %s" % (m.id, p))
-                self.assertLess(abs(p[0] - 16.5), 0.1, "wall VO %d at %s" % (m.id, p))
+                self.assertLess(abs(p[1] - 2.4), 0.05, "wall VO %d at %s" % (m.id, p))
+                self.assertLess(abs(p[0] - 16.5), 0.25, "wall VO %d at %s" % (m.id, p))
                 self.assertTrue(0.8 < p[2] < 1.6, "wall VO %d at %s" % (m.id, p))
         self.assertGreater(floor, 5, "VOs on the floor: %d" % floor)
         self.assertGreater(wall, 3, "VOs on the wall: %d" % wall)

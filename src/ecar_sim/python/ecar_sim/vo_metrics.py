@@ -10,7 +10,10 @@ Definitions (all times are wall-clock seconds on the session's one machine):
   server's camera positions (map frame) to the ground truth (world frame).
 - A VO is *expected* on a device frame when the device has received its first
   local graph, the VO's state from `grace` seconds earlier is live (not
-  deleted), and that state is visible from the frame's ground-truth camera: one
+  deleted), and that state is visible from the frame's ground-truth camera and
+  was already visible from the device's frame `grace` seconds earlier (what just
+  came into view reaches the device with the graph of an upload that sees it;
+  `success_strict` per device drops this condition). Visible means: one
   of its points (LINE: start, centre, end; ANCHOR: position) projects into the
   image in front of the camera, lies within `max_range` metres, and the straight
   line from the camera to it stays in the scene's free space (no wall or solid in
@@ -31,7 +34,8 @@ Definitions (all times are wall-clock seconds on the session's one machine):
 - Position agreement: where a device draws a VO in the real world, that is the
   VO's map position seen from the device's own pose estimate, put into the world
   with the frame's ground-truth camera. For each VO version seen by two or more
-  devices, the distance between their median drawn positions.
+  devices, the distance between their median drawn positions (over all frames,
+  and over the frames within 10 m of the VO).
 """
 
 import bisect
@@ -282,6 +286,7 @@ class VoEvaluator:
 
     def evaluate(self):
         total = [0, 0]
+        total_strict = [0, 0]
         by_device = {}
         by_distance = {}
         by_angle = {}
@@ -293,18 +298,30 @@ class VoEvaluator:
             rt = dev.round_trip()
             grace = 2.0 * rt if rt else 0.0
             counts = [0, 0]
+            strict = [0, 0]
             started = False
+            order = sorted(dev.frames, key=lambda f: dev.frames[f][0])
+            walls = [dev.frames[f][0] for f in order]
             for f in sorted(dev.frames):
                 wall, status, pos, quat, held = dev.frames[f]
                 started = started or status != 0
                 if not started or f not in dev.gt:
                     continue
                 T = dev.gt[f]
+                # The device's frame `grace` earlier: a VO that came into view since then may
+                # not have reached it yet (it goes into the local graph of an upload that sees it).
+                k = bisect.bisect_right(walls, wall - grace)
+                earlier = order[k - 1] if k else None
                 for oid in self.timeline.by_id:
                     state = self.timeline.at(oid, wall - grace)
                     if state is None or state.deleted or not self.visible(dev, f, state):
                         continue
                     ok = held.get(oid, 0) >= state.version
+                    strict[0] += ok
+                    strict[1] += 1
+                    if earlier is None or earlier not in dev.gt or \
+                            not self.visible(dev, earlier, state):
+                        continue
                     counts[0] += ok
                     counts[1] += 1
                     if dev.name == state.owner:
@@ -332,12 +349,15 @@ class VoEvaluator:
                     c = state.position
                     p_c = r_mc.T @ (c - t_mc) * self.sim.s
                     drawn.setdefault((oid, version), {}).setdefault(dev.name, []).append(
-                        T[:3, :3] @ p_c + T[:3, 3])
+                        (T[:3, :3] @ p_c + T[:3, 3], float(np.linalg.norm(p_c))))
             by_device[dev.name] = {"expected": counts[1], "held": counts[0],
                                    "success": _rate(counts[0], counts[1]),
+                                   "success_strict": _rate(strict[0], strict[1]),
                                    "grace_s": round(grace, 3)}
             total[0] += counts[0]
             total[1] += counts[1]
+            total_strict[0] += strict[0]
+            total_strict[1] += strict[1]
 
         receivers = [0, 0]
         for ok, n in by_distance.values():
@@ -348,6 +368,7 @@ class VoEvaluator:
             "changes": sum(len(v) for v in self.timeline.by_id.values()),
             "success": _rate(total[0], total[1]),
             "expected_frames": total[1],
+            "success_strict": _rate(total_strict[0], total_strict[1]),
             "success_other_devices": _rate(receivers[0], receivers[1]),
             "by_device": by_device,
             "by_distance": _bins(by_distance, DISTANCE_BIN_M, "m"),
@@ -399,19 +420,27 @@ class VoEvaluator:
             "within_two_round_trips": _rate(sum(1 for t in trips if t <= 2.0), len(trips)),
         }
 
-    def agreement(self, drawn, min_frames=3):
-        gaps = []
-        for key, per_device in drawn.items():
-            medians = [np.median(np.array(v), axis=0) for v in per_device.values()
-                       if len(v) >= min_frames]
-            for i in range(len(medians)):
-                for j in range(i + 1, len(medians)):
-                    gaps.append(float(np.linalg.norm(medians[i] - medians[j])))
-        return {
-            "pairs": len(gaps),
-            "median_m": round(_pct(gaps, 50), 4) if gaps else None,
-            "max_m": round(max(gaps), 4) if gaps else None,
-        }
+    def agreement(self, drawn, min_frames=3, near_m=10.0):
+        """Distances between devices' median drawn positions of each VO version: over all their
+        frames, and over the frames that saw it from within near_m (a pose's rotation error
+        moves a far VO's drawn position more)."""
+        out = {}
+        for name, limit in (("", None), ("near_", near_m)):
+            gaps = []
+            for per_device in drawn.values():
+                medians = []
+                for views in per_device.values():
+                    pts = [p for p, d in views if limit is None or d <= limit]
+                    if len(pts) >= min_frames:
+                        medians.append(np.median(np.array(pts), axis=0))
+                for i in range(len(medians)):
+                    for j in range(i + 1, len(medians)):
+                        gaps.append(float(np.linalg.norm(medians[i] - medians[j])))
+            out[name + "pairs"] = len(gaps)
+            out[name + "median_m"] = round(_pct(gaps, 50), 4) if gaps else None
+            out[name + "max_m"] = round(max(gaps), 4) if gaps else None
+        out["near_limit_m"] = near_m
+        return out
 
     def detail(self):
         out = []
