@@ -200,6 +200,37 @@ class LatencyAndAgreementTest(unittest.TestCase):
         np.testing.assert_allclose(r["objects_detail"][0]["world_position"], world, atol=1e-3)
 
 
+class PlanesTest(unittest.TestCase):
+    def test_labels_checked_against_the_scene(self):
+        sim = vm.Similarity(0.5, vm.quat_to_rot((0.0, 0.0, 0.38268343, 0.92387953)),
+                            np.array([3.0, -1.0, 0.2]))
+
+        def to_map(n_w, c_w):
+            n = sim.r.T @ np.asarray(n_w, float)
+            c = sim.r.T @ (np.asarray(c_w, float) - sim.t) / sim.s
+            return {"normal": n, "offset": -float(n @ c), "centroid": c}
+
+        planes = [dict(id=1, label=0, points=100, **to_map([0, 0, 1], [5.0, 1.2, 0.01])),
+                  dict(id=2, label=1, points=80, **to_map([0, 1, 0], [6.0, 2.38, 1.0])),
+                  dict(id=3, label=2, points=50, **to_map([0, 0, -1], [7.0, 1.0, 2.7])),
+                  dict(id=4, label=0, points=40, **to_map([0, 0, 1], [10.5, 1.0, 2.0])),
+                  # A wall labelled floor: wrong.
+                  dict(id=5, label=0, points=30, **to_map([0, -1, 0], [12.0, 0.0, 1.0]))]
+        r = vm.check_planes(planes, CORRIDOR, sim)
+        rows = {d["id"]: d for d in r["detail"]}
+        self.assertEqual(r["planes"], 5)
+        self.assertEqual(r["labelled_right"], 4)
+        self.assertEqual(rows[1]["true_surface"], "floor")
+        self.assertAlmostEqual(rows[1]["distance_m"], 0.01, places=6)
+        self.assertEqual(rows[2]["true_surface"], "wall")
+        self.assertAlmostEqual(rows[2]["distance_m"], 0.02, places=6)
+        self.assertEqual(rows[3]["true_surface"], "ceiling")
+        self.assertEqual(rows[4]["true_surface"], "object top")  # the solid's top, z = 2
+        self.assertTrue(rows[4]["right"])
+        self.assertFalse(rows[5]["right"])
+        self.assertEqual(r["found"], ["ceiling", "floor", "object top", "wall"])
+
+
 if __name__ == "__main__":
     import rosunit
     rosunit.unitrun("ecar_sim", "vo_metrics", "__main__")
