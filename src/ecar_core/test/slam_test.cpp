@@ -252,7 +252,7 @@ TEST(SlamTest, DeviceWalkingTheOtherWayJoins) {
   const Scene scene = loadScene(kScenes + "/corridor.yaml");
   const Renderer renderer(scene);
   const auto a = renderUploads(scene, renderer, "device_0", 4, 45);       // x 0.6 -> 7.3
-  const auto b = renderUploads(scene, renderer, "device_1", 4, 14, 462);  // x 13.0 -> 11.0
+  const auto b = renderUploads(scene, renderer, "device_1", 4, 14, 522);  // x 13.0 -> 11.0
   SlamSystem slam(renderer.camera());
   std::vector<Eigen::Vector3d> est, gt;
   for (const auto& u : a) {
