@@ -427,15 +427,22 @@ class VoEvaluator:
         out = {}
         for name, limit in (("", None), ("near_", near_m)):
             gaps = []
-            for per_device in drawn.values():
+            worst = None
+            for (oid, version), per_device in drawn.items():
                 medians = []
-                for views in per_device.values():
+                for dev, views in per_device.items():
                     pts = [p for p, d in views if limit is None or d <= limit]
                     if len(pts) >= min_frames:
-                        medians.append(np.median(np.array(pts), axis=0))
+                        medians.append((dev, np.median(np.array(pts), axis=0), len(pts)))
                 for i in range(len(medians)):
                     for j in range(i + 1, len(medians)):
-                        gaps.append(float(np.linalg.norm(medians[i] - medians[j])))
+                        gap = float(np.linalg.norm(medians[i][1] - medians[j][1]))
+                        gaps.append(gap)
+                        if worst is None or gap > worst["gap_m"]:
+                            worst = {"id": oid, "version": version, "gap_m": round(gap, 4),
+                                     "devices": [medians[i][0], medians[j][0]],
+                                     "frames": [medians[i][2], medians[j][2]]}
+            out[name + "worst"] = worst
             out[name + "pairs"] = len(gaps)
             out[name + "median_m"] = round(_pct(gaps, 50), 4) if gaps else None
             out[name + "max_m"] = round(max(gaps), 4) if gaps else None
