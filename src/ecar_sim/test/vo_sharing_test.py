@@ -38,18 +38,6 @@ PKG = "ecar_sim"
 DEVICES = ["drawer", "receiver"]
 
 
-def read_groundtruth(folder):
-    poses = {}
-    with open(os.path.join(folder, "groundtruth.txt")) as f:
-        rows = [line.split() for line in f if line.strip() and not line.startswith("#")]
-    for i, r in enumerate(rows):
-        T = np.eye(4)
-        T[:3, :3] = vm.quat_to_rot([float(x) for x in r[4:8]])
-        T[:3, 3] = [float(x) for x in r[1:4]]
-        poses[i] = T
-    return poses
-
-
 class VoSharingTest(unittest.TestCase):
     def setUp(self):
         self.scene = rospy.get_param("~scene")
@@ -146,7 +134,7 @@ class VoSharingTest(unittest.TestCase):
         # Map -> world from the server's poses of both devices.
         src, dst, records = [], [], []
         for d in DEVICES:
-            gt = read_groundtruth(datasets[d])
+            gt = vm.read_groundtruth(datasets[d])
             for f, p in self.server[d].items():
                 src.append(p)
                 dst.append(gt[f][:3, 3])

@@ -40,6 +40,7 @@ Definitions (all times are wall-clock seconds on the session's one machine):
 
 import bisect
 import math
+import os
 
 import numpy as np
 
@@ -147,6 +148,20 @@ class Camera:
 
 
 # ---------------------------------------------------------------- inputs
+
+
+def read_groundtruth(folder):
+    """{frame index: 4x4 T_world_camera} from a dataset's groundtruth.txt (TUM, one pose per
+    frame, in frame order)."""
+    poses = {}
+    with open(os.path.join(folder, "groundtruth.txt")) as f:
+        rows = [line.split() for line in f if line.strip() and not line.startswith("#")]
+    for i, r in enumerate(rows):
+        T = np.eye(4)
+        T[:3, :3] = quat_to_rot([float(x) for x in r[4:8]])
+        T[:3, 3] = [float(x) for x in r[1:4]]
+        poses[i] = T
+    return poses
 
 
 class VoState:
