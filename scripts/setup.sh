@@ -39,7 +39,8 @@ else
   ROS_SETUP=""
   ROS_PKGS=(
     catkin python3-catkin-pkg python3-rospkg python3-empy
-    libroscpp-dev librosbag-dev python3-rosbag python3-roslaunch python3-rostest librostest-dev
+    libroscpp-dev librosbag-dev python3-rosbag python3-roslaunch python3-rostest python3-rosunit
+    librostest-dev
     python3-rospy python3-rostopic python3-rosnode python3-rosservice python3-rosparam python3-rosmsg
     rosbash rosout ros-core-dev
     libtf2-ros-dev libtf2-eigen-dev python3-tf2-ros libimage-transport-dev libcv-bridge-dev python3-cv-bridge

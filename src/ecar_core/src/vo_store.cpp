@@ -241,46 +241,23 @@ class VoStore::Database {
     return static_cast<uint32_t>(value);
   }
 
-  /// Stores `entry` (insert or replace) and, when `next_id` is set, the id
-  /// counter, in one transaction. Returns false with `error` set when it fails
-  /// (the transaction is rolled back).
+  /// Writes one object row and, when given, the id counter, in one transaction.
+  /// Returns false with `error` set when it fails (the transaction is rolled back).
   bool write(const Entry& entry, std::optional<uint32_t> next_id, std::string* error) {
-    if (!exec("BEGIN IMMEDIATE", error)) return false;
-    bool ok = bindEntry(entry) && step(upsert_);
-    if (ok && next_id) {
-      ok = sqlite3_bind_text(set_meta_, 1, "next_id", -1, SQLITE_STATIC) == SQLITE_OK &&
-           sqlite3_bind_text(set_meta_, 2, std::to_string(*next_id).c_str(), -1,
-                             SQLITE_TRANSIENT) == SQLITE_OK &&
-           step(set_meta_);
-    }
-    if (ok) ok = exec("COMMIT", error);
-    if (!ok) {
-      if (error->empty()) *error = sqlite3_errmsg(db_);
-      if (!sqlite3_get_autocommit(db_)) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
-      return false;
-    }
-    return true;
+    return transaction(error, [&](std::string*) {
+      return bindEntry(entry) && step(upsert_) && (!next_id || setNextId(*next_id));
+    });
   }
 
   /// Replaces every row and the id counter in one transaction. Returns false
   /// with `error` set when it fails (the transaction is rolled back).
   bool replaceAll(const std::vector<const Entry*>& entries, uint32_t next_id, std::string* error) {
-    if (!exec("BEGIN IMMEDIATE", error)) return false;
-    bool ok = exec("DELETE FROM objects", error);
-    for (size_t i = 0; ok && i < entries.size(); ++i) ok = bindEntry(*entries[i]) && step(upsert_);
-    if (ok) {
-      ok = sqlite3_bind_text(set_meta_, 1, "next_id", -1, SQLITE_STATIC) == SQLITE_OK &&
-           sqlite3_bind_text(set_meta_, 2, std::to_string(next_id).c_str(), -1, SQLITE_TRANSIENT) ==
-               SQLITE_OK &&
-           step(set_meta_);
-    }
-    if (ok) ok = exec("COMMIT", error);
-    if (!ok) {
-      if (error->empty()) *error = sqlite3_errmsg(db_);
-      if (!sqlite3_get_autocommit(db_)) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
-      return false;
-    }
-    return true;
+    return transaction(error, [&](std::string* why) {
+      bool ok = exec("DELETE FROM objects", why);
+      for (size_t i = 0; ok && i < entries.size(); ++i)
+        ok = bindEntry(*entries[i]) && step(upsert_);
+      return ok && setNextId(next_id);
+    });
   }
 
   /// Copies the database to `path` (online backup API).
@@ -519,6 +496,29 @@ class VoStore::Database {
     txt(e.last_editor);
     i64(e.editor_since);
     return ok;
+  }
+
+  /// Runs `body` (statements of this connection, reporting into its argument)
+  /// between BEGIN IMMEDIATE and COMMIT; rolls back and returns false with
+  /// `error` set (the body's text, else SQLite's message) when any part fails.
+  template <typename Body>
+  bool transaction(std::string* error, Body body) {
+    if (!exec("BEGIN IMMEDIATE", error)) return false;
+    bool ok = body(error);
+    if (ok) ok = exec("COMMIT", error);
+    if (!ok) {
+      if (error->empty()) *error = sqlite3_errmsg(db_);
+      if (!sqlite3_get_autocommit(db_)) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
+    }
+    return ok;
+  }
+
+  /// Binds and writes the "next_id" meta row (inside a transaction).
+  bool setNextId(uint32_t next_id) {
+    return sqlite3_bind_text(set_meta_, 1, "next_id", -1, SQLITE_STATIC) == SQLITE_OK &&
+           sqlite3_bind_text(set_meta_, 2, std::to_string(next_id).c_str(), -1, SQLITE_TRANSIENT) ==
+               SQLITE_OK &&
+           step(set_meta_);
   }
 
   bool step(sqlite3_stmt* s) {

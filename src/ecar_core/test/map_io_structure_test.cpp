@@ -16,53 +16,18 @@
 #include "ecar_core/map_io.h"
 #include "ecar_core/planes.h"
 #include "ecar_core/vo_store.h"
+#include "test_support.h"
 
 namespace ecar {
 namespace {
 
+using ecar::testing::contains;
+using ecar::testing::errorOf;
+using ecar::testing::readBytes;
+using ecar::testing::TempDir;
+using ecar::testing::writeBytes;
+
 namespace fs = std::filesystem;
-
-class TempDir {
- public:
-  TempDir() {
-    path_ = fs::temp_directory_path() / ("ecar_map_io_structure_" + std::to_string(::getpid()));
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
-
-std::vector<uint8_t> readBytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
-}
-
-void writeBytes(const std::string& path, const std::vector<uint8_t>& bytes) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out.write(reinterpret_cast<const char*>(bytes.data()),
-            static_cast<std::streamsize>(bytes.size()));
-}
-
-template <typename F>
-std::string errorOf(F&& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  ADD_FAILURE() << "no ecar::Error thrown";
-  return {};
-}
-
-bool contains(const std::string& text, const std::string& part) {
-  return text.find(part) != std::string::npos;
-}
 
 // Two planes (a floor and a wall) with points, boundaries and keyframe links;
 // the id counter is past a plane merged away (id 3).

@@ -21,61 +21,24 @@
 #include "ecar_core/motion.h"
 #include "ecar_core/renderer.h"
 #include "ecar_core/slam.h"
+#include "test_support.h"
 
 namespace ecar {
 namespace {
+
+using ecar::testing::contains;
+using ecar::testing::errorOf;
+using ecar::testing::readBytes;
+using ecar::testing::TempDir;
+using ecar::testing::writeBytes;
 
 namespace fs = std::filesystem;
 
 const std::string kScenes = ECAR_REPO_ROOT "/config/scenes";
 
-// A directory of its own for each test binary run, removed at exit.
-class TempDir {
- public:
-  TempDir() {
-    path_ = fs::temp_directory_path() / ("ecar_map_io_test_" + std::to_string(::getpid()));
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
-
 const TempDir& tempDir() {
-  static const TempDir dir;
+  static const TempDir dir("ecar_map_io_test");
   return dir;
-}
-
-std::vector<uint8_t> readBytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
-}
-
-void writeBytes(const std::string& path, const std::vector<uint8_t>& bytes) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out.write(reinterpret_cast<const char*>(bytes.data()),
-            static_cast<std::streamsize>(bytes.size()));
-}
-
-// The message of the ecar::Error `f` throws; fails the test when it throws none.
-template <typename F>
-std::string errorOf(F&& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  ADD_FAILURE() << "no ecar::Error thrown";
-  return {};
-}
-
-bool contains(const std::string& text, const std::string& part) {
-  return text.find(part) != std::string::npos;
 }
 
 // ------------------------------------------------------------ the container

@@ -25,29 +25,14 @@
 #include <thread>
 
 #include "ecar_core/error.h"
+#include "test_support.h"
 
 namespace ecar {
 namespace {
 
+using ecar::testing::TempDir;
+
 namespace fs = std::filesystem;
-
-// A fresh directory for the test's databases, removed afterwards.
-class TempDir {
- public:
-  TempDir() {
-    std::string pattern = (fs::temp_directory_path() / "vo_store_test_XXXXXX").string();
-    if (!mkdtemp(pattern.data())) throw std::runtime_error("mkdtemp failed");
-    path_ = pattern;
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
 
 VirtualObject line(const Eigen::Vector3d& start, const Eigen::Vector3d& end,
                    const std::string& owner = "device_0") {

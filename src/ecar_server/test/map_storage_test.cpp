@@ -13,67 +13,21 @@
 
 #include <gtest/gtest.h>
 
+#include "../../ecar_core/test/test_support.h"
 #include "ecar_core/error.h"
+#include "structure_fixtures.h"
 
 namespace ecar_server {
 namespace {
 
+using ecar_server::testing::camera640;
+using ecar_server::testing::floorKeyFrame;
+using ecar_server::testing::lookingAlongX;
+
+using ecar::testing::contains;
+using ecar::testing::TempDir;
+
 namespace fs = std::filesystem;
-
-class TempDir {
- public:
-  TempDir() {
-    path_ = fs::temp_directory_path() / ("ecar_map_storage_test_" + std::to_string(::getpid()));
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
-
-ecar::PinholeCamera camera640() {
-  ecar::CameraParams p;
-  p.width = 640;
-  p.height = 480;
-  p.fx = 525.0;
-  p.fy = 525.0;
-  p.cx = 319.5;
-  p.cy = 239.5;
-  return ecar::PinholeCamera(p);
-}
-
-// A camera at x0, 1.5 m above the floor z = 0, looking along +x, pitched down.
-ecar::SE3 lookingAlongX(double x0) {
-  ecar::SE3 T = ecar::SE3::Identity();
-  Eigen::Matrix3d R;
-  R.col(0) = -Eigen::Vector3d::UnitY();
-  R.col(1) = -Eigen::Vector3d::UnitZ();
-  R.col(2) = Eigen::Vector3d::UnitX();
-  T.linear() = Eigen::AngleAxisd(5.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()) * R;
-  T.translation() = Eigen::Vector3d(x0, 0.0, 1.5);
-  return T;
-}
-
-ecar::PlaneKeyFrameInput floorKeyFrame(ecar::KeyFrameId id, const ecar::SE3& T_w_c) {
-  ecar::PlaneKeyFrameInput in;
-  in.keyframe = id;
-  in.camera_center_w = T_w_c.translation();
-  in.up_w = Eigen::Vector3d::UnitZ();
-  std::mt19937 rng(3);
-  std::normal_distribution<double> noise(0.0, 0.01);
-  uint32_t next = 1;
-  for (double x = 1.0; x <= 7.0; x += 0.05) {
-    for (double y = -1.2; y <= 1.2; y += 0.05) {
-      in.points.push_back({ecar::MapPointId(next++), Eigen::Vector3d(x, y, noise(rng))});
-    }
-  }
-  return in;
-}
 
 ServerConfig configWith(const std::string& database) {
   ServerConfig c;
@@ -113,10 +67,6 @@ std::string errorOf(const std::function<void()>& f) {
   }
   ADD_FAILURE() << "no ecar::Error thrown";
   return {};
-}
-
-bool contains(const std::string& text, const std::string& part) {
-  return text.find(part) != std::string::npos;
 }
 
 TEST(MapStorageTest, AFreshServerResumesTheSavedMap) {

@@ -8,50 +8,14 @@
 
 #include "ecar_core/error.h"
 #include "ecar_server/markers.h"
+#include "structure_fixtures.h"
 
 namespace ecar_server {
 namespace {
 
-ecar::PinholeCamera camera640() {
-  ecar::CameraParams p;
-  p.width = 640;
-  p.height = 480;
-  p.fx = 525.0;
-  p.fy = 525.0;
-  p.cx = 319.5;
-  p.cy = 239.5;
-  return ecar::PinholeCamera(p);
-}
-
-// A camera at height 1.5 m at x = x0 looking along +x (optical z = world x,
-// x = -y, y = -z), pitched down by 5 degrees.
-ecar::SE3 lookingAlongX(double x0) {
-  ecar::SE3 T = ecar::SE3::Identity();
-  Eigen::Matrix3d R;
-  R.col(0) = -Eigen::Vector3d::UnitY();
-  R.col(1) = -Eigen::Vector3d::UnitZ();
-  R.col(2) = Eigen::Vector3d::UnitX();
-  T.linear() = Eigen::AngleAxisd(5.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()) * R;
-  T.translation() = Eigen::Vector3d(x0, 0.0, 1.5);
-  return T;
-}
-
-// Floor points z = 0 (1 cm noise) over x in [1, 7], y in [-1.2, 1.2], 5 cm apart.
-ecar::PlaneKeyFrameInput floorKeyFrame(ecar::KeyFrameId id, const ecar::SE3& T_w_c) {
-  ecar::PlaneKeyFrameInput in;
-  in.keyframe = id;
-  in.camera_center_w = T_w_c.translation();
-  in.up_w = Eigen::Vector3d::UnitZ();
-  std::mt19937 rng(3);
-  std::normal_distribution<double> noise(0.0, 0.01);
-  uint32_t next = 1;
-  for (double x = 1.0; x <= 7.0; x += 0.05) {
-    for (double y = -1.2; y <= 1.2; y += 0.05) {
-      in.points.push_back({ecar::MapPointId(next++), Eigen::Vector3d(x, y, noise(rng))});
-    }
-  }
-  return in;
-}
+using ecar_server::testing::camera640;
+using ecar_server::testing::floorKeyFrame;
+using ecar_server::testing::lookingAlongX;
 
 ecar::VirtualObject lineAt(double x, double y) {
   ecar::VirtualObject vo;
