@@ -45,6 +45,11 @@ void LocalMapper::setMappedCallback(std::function<void(KeyFrameId)> callback) {
   mapped_callback_ = std::move(callback);
 }
 
+void LocalMapper::setCulledCallback(std::function<void(KeyFrameId, KeyFrameId)> callback) {
+  std::lock_guard<std::mutex> lock(queue_mutex_);
+  culled_callback_ = std::move(callback);
+}
+
 void LocalMapper::processPending() {
   for (;;) {
     KeyFrameId kf;
@@ -355,7 +360,8 @@ void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
     std::unordered_map<KeyFrameId, int> kf_index;
     for (const auto& id : local) {
       kf_index[id] = static_cast<int>(problem.keyframes.size());
-      problem.keyframes.push_back({map_->keyframe(id)->T_c_w, false});
+      const KeyFrame* k = map_->keyframe(id);
+      problem.keyframes.push_back({k->T_c_w, false, k->alignedUp(config_.gravity_tolerance_deg)});
       kf_ids.push_back(id);
     }
     // The first keyframe of the map anchors the gauge when it is in the window.
@@ -379,7 +385,7 @@ void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
           const KeyFrame* fk = map_->keyframe(obs.first);
           if (!fk) continue;
           it = kf_index.emplace(obs.first, static_cast<int>(problem.keyframes.size())).first;
-          problem.keyframes.push_back({fk->T_c_w, true});
+          problem.keyframes.push_back({fk->T_c_w, true, std::nullopt});
           kf_ids.push_back(obs.first);
         }
         const KeyFrame* ok = map_->keyframe(obs.first);
@@ -450,10 +456,18 @@ void LocalMapper::cullKeyFrames(KeyFrameId kf) {
       if (others >= 3) ++redundant;
     }
     if (total > 0 && redundant > 0.9 * total) {
+      KeyFrameId heir;
+      for (const auto& h : map_->bestCovisible(nid, 1)) heir = h;
       map_->eraseKeyFrame(nid);
       lock.unlock();
       index_->remove(nid);
       if (keypoints_) keypoints_->remove(nid);
+      std::function<void(KeyFrameId, KeyFrameId)> callback;
+      {
+        std::lock_guard<std::mutex> ql(queue_mutex_);
+        callback = culled_callback_;
+      }
+      if (callback) callback(nid, heir);
       lock.lock();
     }
   }

@@ -14,6 +14,15 @@ int KeyFrame::numTrackedPoints(int /*min_observations*/) const {
   return n;
 }
 
+std::optional<Eigen::Vector3d> KeyFrame::alignedUp(double tol_deg) const {
+  const auto& g = features.gravity_c;
+  if (!g || !g->allFinite() || g->norm() < 1.0) return std::nullopt;
+  const Eigen::Vector3d up = g->normalized();
+  const Eigen::Vector3d map_up = T_c_w.linear() * Eigen::Vector3d::UnitZ();
+  if (map_up.dot(up) <= std::cos(tol_deg * M_PI / 180.0)) return std::nullopt;
+  return up;
+}
+
 int MapPoint::predictScale(double dist, const ScaleInfo& scale) const {
   if (!(max_distance > 0) || !(dist > 0)) return 0;
   const double ratio = max_distance / dist;

@@ -188,6 +188,23 @@ template bool PoseOnlyReprojectionError::operator()<ceres::Jet<double, 6>>(
 
 // Analytic Jacobians; the templated operator() is the reference they are
 // tested against.
+template <typename T>
+bool GravityPriorError::operator()(const T* pose, T* residual) const {
+  // R(aa) e_z: the map's up axis in the camera frame.
+  const T z_w[3] = {T(0.0), T(0.0), T(1.0)};
+  T up[3];
+  ceres::AngleAxisRotatePoint(pose, z_w, up);
+  for (int i = 0; i < 3; ++i) residual[i] = (up[i] - up_c_[i]) * inv_sigma_;
+  return true;
+}
+
+template bool GravityPriorError::operator()<double>(const double*, double*) const;
+
+ceres::CostFunction* GravityPriorError::Create(const Eigen::Vector3d& up_c, double sigma_rad) {
+  return new ceres::AutoDiffCostFunction<GravityPriorError, 3, 6>(
+      new GravityPriorError(up_c, sigma_rad));
+}
+
 ceres::CostFunction* ReprojectionError::Create(const Eigen::Vector2d& uv, double sqrt_info,
                                                const Intrinsics& K) {
   return new AnalyticReprojectionError(ReprojectionError(uv, sqrt_info, K));
@@ -335,6 +352,7 @@ class LocalBa {
   std::vector<std::array<double, 3>> points_, points0_;
   std::vector<std::unique_ptr<ceres::CostFunction>> costs_;  // null: unusable observation
   std::vector<bool> active_;
+  std::vector<std::unique_ptr<ceres::CostFunction>> gravity_;  // per keyframe, null: no prior
 };
 
 BaResult LocalBa::run() {
@@ -374,6 +392,18 @@ BaResult LocalBa::run() {
     }
     costs_[i].reset(ReprojectionError::Create(o.uv, std::sqrt(o.inv_sigma2), ba_.K));
     active_[i] = true;
+  }
+  // Gravity priors on free keyframes with a usable up direction.
+  gravity_.resize(nk);
+  const double sigma_rad = config_.gravity_sigma_deg * M_PI / 180.0;
+  if (sigma_rad > 0.0 && std::isfinite(sigma_rad)) {
+    for (int k = 0; k < nk; ++k) {
+      const auto& up = ba_.keyframes[k].up_c;
+      if (ba_.keyframes[k].fixed || !pose_ok[k] || !up || !up->allFinite() || up->norm() < 0.5) {
+        continue;
+      }
+      gravity_[k].reset(GravityPriorError::Create(*up, sigma_rad));
+    }
   }
 
   bool usable = solve(true, config_.iterations_first);
@@ -426,6 +456,7 @@ bool LocalBa::solve(bool robust, int iterations) {
   ceres::Problem::Options problem_options = borrowingProblemOptions();
   ceres::Problem problem(problem_options);
   ceres::HuberLoss huber(config_.huber_delta);
+  ceres::HuberLoss gravity_huber(config_.gravity_huber);
   std::vector<bool> in_problem_kf(poses_.size(), false), in_problem_point(points_.size(), false);
   int num_residuals = 0;
   for (size_t i = 0; i < costs_.size(); ++i) {
@@ -438,6 +469,11 @@ bool LocalBa::solve(bool robust, int iterations) {
     ++num_residuals;
   }
   if (num_residuals == 0) return false;
+  for (size_t k = 0; k < gravity_.size(); ++k) {
+    if (gravity_[k] && in_problem_kf[k]) {
+      problem.AddResidualBlock(gravity_[k].get(), &gravity_huber, poses_[k].data());
+    }
+  }
 
   // Schur complement: points first, then the poses.
   auto* ordering = new ceres::ParameterBlockOrdering;

@@ -20,10 +20,7 @@ double msSince(std::chrono::steady_clock::time_point t0) {
 // Whether a keyframe's pose agrees with its own gravity within tol_deg: the
 // map's z axis is up there (the map was initialised with gravity).
 bool gravityAlignedAt(const KeyFrame& kf, double tol_deg) {
-  const auto& g = kf.features.gravity_c;
-  if (!g || !g->allFinite() || g->norm() < 1.0) return false;
-  const Eigen::Vector3d up = kf.T_c_w.linear() * Eigen::Vector3d::UnitZ();
-  return up.dot(g->normalized()) > std::cos(tol_deg * M_PI / 180.0);
+  return kf.alignedUp(tol_deg).has_value();
 }
 
 bool hasGravity(const Frame& f) {

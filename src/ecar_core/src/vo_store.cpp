@@ -249,6 +249,17 @@ class VoStore::Database {
     });
   }
 
+  /// Writes object rows in one transaction. Returns false with `error` set
+  /// when it fails (the transaction is rolled back).
+  bool writeAll(const std::vector<const Entry*>& entries, std::string* error) {
+    return transaction(error, [&](std::string*) {
+      bool ok = true;
+      for (size_t i = 0; ok && i < entries.size(); ++i)
+        ok = bindEntry(*entries[i]) && step(upsert_);
+      return ok;
+    });
+  }
+
   /// Replaces every row and the id counter in one transaction. Returns false
   /// with `error` set when it fails (the transaction is rolled back).
   bool replaceAll(const std::vector<const Entry*>& entries, uint32_t next_id, std::string* error) {
@@ -983,6 +994,36 @@ void VoStore::replaceAll(const VoSnapshot& snapshot) {
   }
   num_live_ = live;
   next_id_ = next_id;
+}
+
+size_t VoStore::moveKeyFrame(KeyFrameId from, KeyFrameId to) {
+  if (!from.valid() || from == to) return 0;
+  std::lock_guard<std::mutex> write(write_mutex_);
+  std::vector<Entry> moved;
+  {
+    std::shared_lock<std::shared_mutex> state(state_mutex_);
+    const auto it = keyframe_index_.find(from);
+    if (it == keyframe_index_.end()) return 0;
+    for (const ObjectId id : it->second) {
+      moved.push_back(objects_.at(id));
+      moved.back().keyframe = to;
+    }
+  }
+  std::vector<const Entry*> rows;
+  for (const Entry& e : moved) rows.push_back(&e);
+  std::string error;
+  if (!db_->writeAll(rows, &error)) {
+    throw Error(config_.database_path + ": moving the objects of keyframe " +
+                std::to_string(from.value) + " failed: " + error);
+  }
+  std::unique_lock<std::shared_mutex> state(state_mutex_);
+  for (const Entry& e : moved) {
+    Entry& stored = objects_.at(e.vo.id);
+    detach(stored);
+    stored.keyframe = to;
+    attach(stored);
+  }
+  return moved.size();
 }
 
 void VoStore::backupTo(const std::string& path) const {

@@ -431,6 +431,39 @@ TEST(VoStoreKeyFrame, HangsOnTheNearestKeyFrameAtRegistration) {
   EXPECT_TRUE(store.objectsOfKeyFrames({KeyFrameId(9)}).empty());
 }
 
+// A culled keyframe's objects move to its heir, in the database too, at the same version.
+TEST(VoStoreKeyFrame, ObjectsOfACulledKeyFrameMoveToItsHeir) {
+  TempDir dir;
+  VoStoreConfig config;
+  config.database_path = dir.file("vo.sqlite");
+  config.attach_mode = VoAttachMode::kKeyFrame;
+  ObjectId a, b, c;
+  {
+    VoStore store(config);
+    a = store.registerObject(anchor({0, 0, 0}), KeyFrameId(7)).id;
+    b = store.registerObject(anchor({1, 0, 0}), KeyFrameId(7)).id;
+    c = store.registerObject(anchor({2, 0, 0}), KeyFrameId(8)).id;
+    ASSERT_TRUE(store.manipulate(b, 1, anchor({1, 1, 0})).accepted);
+    EXPECT_EQ(store.moveKeyFrame(KeyFrameId(7), KeyFrameId(8)), 2u);
+    EXPECT_TRUE(store.objectsOfKeyFrames({KeyFrameId(7)}).empty());
+    std::vector<VirtualObject> got = store.objectsOfKeyFrames({KeyFrameId(8)});
+    ASSERT_EQ(got.size(), 3u);
+    EXPECT_EQ(got[1].id, b);
+    EXPECT_EQ(got[1].version, 2u);  // not a change of the object
+    EXPECT_EQ(got[1].position, Eigen::Vector3d(1, 1, 0));
+    EXPECT_EQ(store.moveKeyFrame(KeyFrameId(7), KeyFrameId(9)), 0u);  // nothing left there
+    EXPECT_EQ(store.moveKeyFrame(KeyFrameId(8), KeyFrameId(8)), 0u);
+    // No heir: the objects hang on no keyframe.
+    EXPECT_EQ(store.moveKeyFrame(KeyFrameId(8), KeyFrameId()), 3u);
+    EXPECT_TRUE(store.objectsOfKeyFrames({KeyFrameId(8)}).empty());
+    EXPECT_EQ(store.numLive(), 3u);
+    EXPECT_EQ(store.moveKeyFrame(KeyFrameId(), KeyFrameId(8)), 0u);
+  }
+  VoStore reopened(config);
+  for (ObjectId id : {a, b, c}) EXPECT_FALSE(reopened.keyFrameOf(id).valid()) << id.value;
+  EXPECT_EQ(reopened.get(b)->version, 2u);
+}
+
 // ---------------------------------------------------------------- persistence
 
 TEST(VoStorePersistence, ReloadsEveryObjectAndTheIdCounter) {

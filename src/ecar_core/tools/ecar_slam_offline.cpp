@@ -3,12 +3,14 @@
 //   ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]
 //                     [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]
 //                     [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]
+//                     [--gravity-sigma DEG]
 //
 // Every Nth frame of each dataset is (optionally) JPEG-compressed at quality Q,
 // decoded, and tracked; several datasets run interleaved by time into one map.
 // Prints and writes (JSON): uploads tracked / total, initialisation upload,
 // relocalisations, keyframes, map points, ATE against the ground truth (Sim(3)
-// without metric odometry, SE(3) with it; one transform for all devices), and
+// without metric odometry, SE(3) with it; one transform for all devices), the
+// rotation and tilt errors after that transform (how far the map bends), and
 // median / p95 times of ORB extraction, tracking and local BA.
 //
 // For a device that joins a map another device started: `joined_upload` (its
@@ -24,7 +26,9 @@
 // for the simulated box-shaped scenes). `join_delay_uploads` is the difference.
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -32,6 +36,8 @@
 #include <tuple>
 #include <vector>
 
+#include <Eigen/Geometry>
+#include <Eigen/SVD>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -57,13 +63,15 @@ struct Args {
   bool threads = false;
   bool verbose = false;
   bool sequential = false;
-  int orb_features = 0;  // 0: the library default
+  int orb_features = 0;             // 0: the library default
+  double gravity_sigma_deg = -1.0;  // < 0: the library default
 };
 
 void usage(std::ostream& os) {
   os << "usage: ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]\n"
         "         [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]\n"
         "         [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]\n"
+        "         [--gravity-sigma DEG]\n"
         "  --every N         track every Nth frame (the server sees every 4th)\n"
         "  --jpeg-quality Q  JPEG-compress each image at quality Q (1-100) first\n"
         "  --frames N        only the first N frames of each dataset\n"
@@ -72,7 +80,8 @@ void usage(std::ostream& os) {
         "  --threads         local mapping on its own thread (default: after each keyframe)\n"
         "  --verbose         one line per upload (state, tracked points, why it failed)\n"
         "  --sequential      run the datasets one after another (later ones join the map)\n"
-        "  --orb-features N  ORB keypoints per image (default 1000; large images want more)\n";
+        "  --orb-features N  ORB keypoints per image (default 1000; large images want more)\n"
+        "  --gravity-sigma D gravity prior of local BA, degrees (0: off; default 0.3)\n";
 }
 
 Args parse(int argc, char** argv) {
@@ -123,6 +132,14 @@ Args parse(int argc, char** argv) {
       a.sequential = true;
     } else if (k == "--orb-features") {
       a.orb_features = integer(100, 100000);
+    } else if (k == "--gravity-sigma") {
+      const std::string v = value();
+      char* end = nullptr;
+      a.gravity_sigma_deg = std::strtod(v.c_str(), &end);
+      if (end == v.c_str() || *end != '\0' || !(a.gravity_sigma_deg >= 0.0) ||
+          a.gravity_sigma_deg > 90.0) {
+        throw ecar::Error("option --gravity-sigma needs degrees in [0, 90] (got '" + v + "')");
+      }
     } else if (k == "--help" || k == "-h") {
       usage(std::cout);
       std::exit(0);
@@ -132,6 +149,23 @@ Args parse(int argc, char** argv) {
   }
   if (a.datasets.empty()) throw ecar::Error("--dataset is required");
   return a;
+}
+
+// Angles (degrees) of each rotation from their chordal mean (the SVD
+// projection of their sum onto SO(3)).
+std::vector<double> rotationSpreadDeg(const std::vector<Eigen::Matrix3d>& rotations) {
+  std::vector<double> out;
+  if (rotations.empty()) return out;
+  Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+  for (const auto& R : rotations) sum += R;
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(sum, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1.0 : 1.0;
+  const Eigen::Matrix3d mean = svd.matrixU() * D * svd.matrixV().transpose();
+  for (const auto& R : rotations) {
+    out.push_back(Eigen::AngleAxisd(R * mean.transpose()).angle() * 180.0 / M_PI);
+  }
+  return out;
 }
 
 // Map points another device's keyframes had observed from about the same
@@ -247,6 +281,7 @@ int run(const Args& args) {
   ecar::SlamConfig config;
   config.synchronous_mapping = !args.threads;
   if (args.orb_features > 0) config.orb.num_features = args.orb_features;
+  if (args.gravity_sigma_deg >= 0.0) config.ba.gravity_sigma_deg = args.gravity_sigma_deg;
   ecar::SlamSystem slam(camera, config);
   bool metric = args.use_odometry;
   for (const auto& r : runs) {
@@ -349,13 +384,23 @@ int run(const Args& args) {
   if (have_ate) firstOverlapUploads(slam, S, camera, &runs);
   std::printf("map: %zu keyframes, %zu map points (%.1f s wall)\n", slam.map().numKeyFrames(),
               slam.map().numPoints(), wall_s);
-  std::vector<double> all_errors;
+  std::vector<double> all_errors, all_tilt;
+  std::vector<Eigen::Matrix3d> map_to_world;
   for (size_t d = 0; d < runs.size(); ++d) {
     const DeviceRun& r = runs[d];
     std::vector<double> errors;
     for (size_t i = 0; i < r.estimate.size() && have_ate; ++i) {
       errors.push_back(
           (S * r.estimate[i].T_w_c.translation() - r.truth[i].T_w_c.translation()).norm());
+      // Map-to-world rotation seen at this upload (its spread is how far the
+      // map bends), and the map's up axis against the true up in the camera
+      // (the map is initialised with its z axis up when there is gravity).
+      const Eigen::Matrix3d& R_est = r.estimate[i].T_w_c.linear();
+      const Eigen::Matrix3d& R_gt = r.truth[i].T_w_c.linear();
+      map_to_world.push_back(R_gt * R_est.transpose());
+      const Eigen::Vector3d up_est = R_est.transpose() * Eigen::Vector3d::UnitZ();
+      const Eigen::Vector3d up_gt = R_gt.transpose() * Eigen::Vector3d::UnitZ();
+      all_tilt.push_back(std::atan2(up_est.cross(up_gt).norm(), up_est.dot(up_gt)) * 180.0 / M_PI);
     }
     all_errors.insert(all_errors.end(), errors.begin(), errors.end());
     const ecar::ErrorStats st = ecar::computeStats(errors);
@@ -408,6 +453,12 @@ int run(const Args& args) {
       "ATE (%s, one transform for all devices): rmse %.4f m, median %.4f m, max %.4f m, scale "
       "%.4f\n",
       metric ? "SE(3)" : "Sim(3)", overall.rmse, overall.median, overall.max, S.scale);
+  const ecar::ErrorStats rotation = ecar::computeStats(rotationSpreadDeg(map_to_world));
+  const ecar::ErrorStats tilt = ecar::computeStats(all_tilt);
+  std::printf(
+      "map bending: map-to-world rotation off its mean by median %.3f deg, max %.3f deg | map "
+      "up axis off gravity: median %.3f deg, max %.3f deg\n",
+      rotation.median, rotation.max, tilt.median, tilt.max);
   std::printf(
       "times ms: ORB median %.1f p95 %.1f | tracking median %.1f p95 %.1f | local BA "
       "median %.1f p95 %.1f (%zu runs)\n",
@@ -417,6 +468,9 @@ int run(const Args& args) {
   summary["map_points"] = slam.map().numPoints();
   summary["ate"] = ecar::toJson(overall);
   summary["scale"] = S.scale;
+  summary["rotation_spread_deg"] = ecar::toJson(rotation);
+  summary["map_tilt_deg"] = ecar::toJson(tilt);
+  summary["gravity_sigma_deg"] = config.ba.gravity_sigma_deg;
   summary["times_ms"] = {
       {"orb_median", percentile(orb_ms, 0.5)},        {"orb_p95", percentile(orb_ms, 0.95)},
       {"tracking_median", percentile(track_ms, 0.5)}, {"tracking_p95", percentile(track_ms, 0.95)},

@@ -12,7 +12,8 @@
 // on /ecar/objects, in version order per object (the timeline measurement
 // tools read). With vo.share "direct" it is also relayed on /<device>/objects
 // to every connected device but the one that made it (local graphs then carry
-// no objects: GraphPublisher).
+// no objects: GraphPublisher); a device subscribing to it (a late joiner)
+// first gets every live object.
 #include <atomic>
 #include <limits>
 #include <map>
@@ -58,7 +59,11 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
         [this, name](const ecar_msgs::Interaction::ConstPtr& msg) { onInteraction(name, *msg); },
         ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay());
     if (share_ == VoShareMode::kDirect) {
-      t.objects = nh.advertise<ecar_msgs::VirtualObject>(topics.objects(), kObjectsQueue);
+      // A device that subscribes (joins, or reconnects) first gets every live
+      // object; later changes follow by the relay in applyAndShare.
+      t.objects = nh.advertise<ecar_msgs::VirtualObject>(
+          topics.objects(), kObjectsQueue,
+          [this, name](const ros::SingleSubscriberPublisher& pub) { sendLiveObjects(name, pub); });
     }
     std::lock_guard<std::mutex> lock(mutex_);
     devices_[device.name] = t;
@@ -175,6 +180,21 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
     result->device_id = device;
     result->header.stamp = ros::Time::now();
     pub.publish(result);
+  }
+
+  // Direct sharing to a new subscriber of /<device>/objects: every live object,
+  // by id. Under apply_mutex_, so each change is either in this snapshot or
+  // relayed after it (the subscriber is connected by now).
+  void sendLiveObjects(const std::string& device, const ros::SingleSubscriberPublisher& pub) {
+    std::lock_guard<std::mutex> lock(apply_mutex_);
+    size_t sent = 0;
+    for (const auto& vo : ctx_->structure().vos().allObjects()) {
+      if (vo.deleted) continue;
+      pub.publish(toMsg(vo));
+      ++sent;
+    }
+    NODELET_INFO("vo_share direct: sent %zu live objects to %s (subscriber %s)", sent,
+                 device.c_str(), pub.getSubscriberName().c_str());
   }
 
   // Applies a request and shares the accepted change: the object's new state on

@@ -1,6 +1,9 @@
 // LocalMapping: the SLAM's mapping thread (started with the SlamSystem, which
 // maps every device's keyframes into the one map) reports each keyframe it
-// finished; this nodelet publishes it on /ecar/keyframe_mapped.
+// finished; this nodelet publishes it on /ecar/keyframe_mapped. When the
+// mapper culls a redundant keyframe, its plane and cell links go and the
+// objects hanging on it (vo_attach keyframe) move to its heir, the neighbour
+// that shared the most points with it.
 #include <memory>
 #include <mutex>
 
@@ -10,6 +13,7 @@
 #include <boost/make_shared.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
+#include "ecar_core/error.h"
 #include "ecar_server/conversions.h"
 #include "ecar_server/ros_params.h"
 #include "ecar_server/server_context.h"
@@ -21,7 +25,10 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ContextListener {
   ~LocalMappingNodelet() override {
     if (ctx_) ctx_->removeListener(this);
     std::lock_guard<std::mutex> lock(mutex_);
-    if (slam_) slam_->mapper().setMappedCallback({});
+    if (slam_) {
+      slam_->mapper().setMappedCallback({});
+      slam_->mapper().setCulledCallback({});
+    }
   }
 
   void onSlamCreated(const std::shared_ptr<ecar::SlamSystem>& slam) override {
@@ -29,6 +36,8 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ContextListener {
     slam_ = slam;
     ecar::SlamSystem* s = slam.get();
     slam->mapper().setMappedCallback([this, s](ecar::KeyFrameId id) { onMapped(*s, id); });
+    slam->mapper().setCulledCallback(
+        [this](ecar::KeyFrameId culled, ecar::KeyFrameId heir) { onCulled(culled, heir); });
   }
 
  private:
@@ -55,6 +64,21 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ContextListener {
     }
     kf.device = ctx_->deviceName(device);
     mapped_pub_.publish(boost::make_shared<ecar_msgs::KeyFrameEvent>(toMsg(kf)));
+  }
+
+  // On the mapping thread.
+  void onCulled(ecar::KeyFrameId culled, ecar::KeyFrameId heir) {
+    Structure& structure = ctx_->structure();
+    structure.eraseKeyFrame(culled);
+    try {
+      const size_t moved = structure.vos().moveKeyFrame(culled, heir);
+      if (moved > 0) {
+        NODELET_INFO("keyframe %u culled: %zu virtual objects now hang on keyframe %u",
+                     culled.value, moved, heir.value);
+      }
+    } catch (const ecar::Error& e) {
+      NODELET_ERROR("keyframe %u culled: %s", culled.value, e.what());
+    }
   }
 
   std::shared_ptr<ServerContext> ctx_;

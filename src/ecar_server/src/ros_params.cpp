@@ -80,6 +80,7 @@ ServerConfig loadServerConfig(const ros::NodeHandle& nh) {
   read(nh, "edgeslam_keyframes", &c.edgeslam_keyframes);
   read(nh, "orb_features", &c.orb_features);
   read(nh, "local_keyframes", &c.local_keyframes);
+  read(nh, "gravity_sigma_deg", &c.gravity_sigma_deg);
   read(nh, "camera_tolerance", &c.camera_tolerance);
 
   ecar::PlaneConfig& p = c.planes;

@@ -60,6 +60,9 @@ void ServerConfig::validate() const {
   if (edgeslam_keyframes < 0) fail("edgeslam_keyframes", "must be >= 0");
   if (orb_features < 100 || orb_features > 100000) fail("orb_features", "must be in [100, 100000]");
   if (local_keyframes < 2) fail("local_keyframes", "must be >= 2");
+  if (!(gravity_sigma_deg >= 0.0) || gravity_sigma_deg > 90.0) {
+    fail("gravity_sigma_deg", "must be in [0, 90] degrees");
+  }
   if (!(camera_tolerance >= 0.0)) fail("camera_tolerance", "must be >= 0");
   if (graph_plane_refresh < 1) throw ecar::Error("planes/graph_plane_refresh must be >= 1");
   planes.validate();
@@ -85,6 +88,7 @@ ecar::SlamConfig ServerConfig::slamConfig() const {
   ecar::SlamConfig c;
   c.orb.num_features = orb_features;
   c.local_keyframes = local_keyframes;
+  c.ba.gravity_sigma_deg = gravity_sigma_deg;
   c.synchronous_mapping = false;
   return c;
 }

@@ -48,7 +48,8 @@ kill -9, the object is in the new server's database.
 ~scenario "share": the test starts server.launch with vo_share:=direct. Two
 fake devices upload the same images; device_0 registers a line on the floor.
 Asserts: device_1 receives its state on /device_1/objects and device_0 gets
-nothing of its own change on /device_0/objects; no local graph carries objects;
+nothing of its own change on /device_0/objects; a device_2 connecting late gets
+the live object when it subscribes; no local graph carries objects;
 /ecar/objects carries every accepted version in order (tombstone included). An
 InteractiveMarkerFeedback (MOUSE_UP, a new pose) on /ecar/vo_markers/feedback
 moves the object by the in-plane part of the marker's move (within 1 mm) at the
@@ -1028,11 +1029,22 @@ class ServerTest(unittest.TestCase):
             feedback_pub.publish(fb)
         self.assertTrue(wait_for(lambda: self.warned("unknown interactive marker", "vo_9999")),
                         "no warning for the unknown marker")
+        # A late joiner gets the live objects when it subscribes, then the changes (checked
+        # with the delete below, well within the device timeout: it uploads nothing).
+        late = FakeDevice("device_2", self.dataset)
+        subs.append(rospy.Subscriber("/device_2/objects", VirtualObject,
+                                     keep("/device_2/objects"), queue_size=100))
+        self.assertTrue(late.connect().accepted)
+        self.assertTrue(wait_for(lambda: versions("/device_2/objects", vo_id) == [(2, False)]),
+                        "the late joiner did not get the live object: %s"
+                        % versions("/device_2/objects", vo_id))
+
         res = b.interact(1, Interaction.DELETE, VirtualObject(), object_id=vo_id, base_version=2)
         self.assertTrue(res is not None and res.accepted, res and res.reason)
         self.assertEqual(res.version, 3)
-        self.assertTrue(wait_for(lambda: (3, True) in versions("/device_0/objects", vo_id)),
-                        "device_0 did not receive the tombstone")
+        for topic in ("/device_0/objects", "/device_2/objects"):
+            self.assertTrue(wait_for(lambda: (3, True) in versions(topic, vo_id)),
+                            "%s did not receive the tombstone" % topic)
         self.assertTrue(wait_for(lambda: versions("/ecar/objects", vo_id)
                                  == [(1, False), (2, False), (3, True)]),
                         "/ecar/objects: %s" % versions("/ecar/objects", vo_id))

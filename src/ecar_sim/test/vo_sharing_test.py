@@ -12,7 +12,7 @@ that
   by the similarity fit of the server's poses to the ground truth), within 10 cm;
 - the receiver held every VO its ground-truth view showed (at the version accepted two of its
   round trips before; ecar_sim.vo_metrics, as run_session measures it), from 10 m and more away,
-  and where the two devices draw them agrees within 5 cm.
+  and where the two devices draw them agrees within 8 cm (0.35 degrees at 13 m).
 
 Private params: ~scene, ~player_launch, ~frames.
 """
@@ -186,8 +186,14 @@ class VoSharingTest(unittest.TestCase):
                         result["by_distance"])
         for b in far:
             self.assertGreaterEqual(b["success"], 0.95, "bin %s" % b)
-        self.assertIsNotNone(result["position_agreement"]["max_m"])
-        self.assertLess(result["position_agreement"]["max_m"], 0.05)
+        # Where the two devices draw each VO: the receiver, 12-14 m away, sees it through the
+        # map between them. Monocular mapping bends that span by 0.1-0.3 degrees (the corridor
+        # runs of scripts/bench_vo.sh), which moves the drawn VO by 2-7 cm at 13 m; measured
+        # here 4-5 cm. Beyond 8 cm (0.35 degrees) the map or the receiver's pose is wrong.
+        agreement = result["position_agreement"]
+        self.assertIsNotNone(agreement["max_m"])
+        self.assertGreaterEqual(agreement["pairs"], 10, "VOs both devices drew: %s" % agreement)
+        self.assertLess(agreement["max_m"], 0.08, "drawn positions disagree: %s" % agreement)
 
 
 if __name__ == "__main__":

@@ -43,6 +43,11 @@ struct KeyFrame {
   Eigen::Vector3d center() const { return T_c_w.inverse().translation(); }
   SE3 T_w_c() const { return T_c_w.inverse(); }
   int numTrackedPoints(int min_observations = 1) const;
+  /// The keyframe's measured up direction (its gravity reading, normalised, in
+  /// the camera frame) when its pose agrees with it within tol_deg, i.e. the
+  /// map's z axis is up here (the map was initialised with gravity); otherwise
+  /// none.
+  std::optional<Eigen::Vector3d> alignedUp(double tol_deg) const;
 };
 
 struct MapPoint {

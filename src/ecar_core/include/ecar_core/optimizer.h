@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include <ceres/ceres.h>
@@ -54,6 +55,10 @@ struct BaProblem {
   struct KeyFrame {
     SE3 T_c_w;
     bool fixed = false;
+    /// Measured up direction (unit, camera frame; the accelerometer's gravity
+    /// reading normalised) where the map's z axis is up: with
+    /// BaConfig::gravity_sigma_deg > 0 it adds a gravity prior on the pose.
+    std::optional<Eigen::Vector3d> up_c;
   };
   struct Point {
     Eigen::Vector3d p_w;
@@ -77,6 +82,15 @@ struct BaConfig {
   double chi2_threshold = 5.991;
   double huber_delta = 2.4477;
   int threads = 1;
+  /// Standard deviation (degrees) of the gravity prior on free keyframes that
+  /// carry `up_c`: residual (R_c_w e_z - up_c) / sigma. Reprojections alone
+  /// leave the slow tilt of a long monocular map (a corridor bends by tenths
+  /// of a degree over 30 m) weakly observed; gravity fixes roll and pitch.
+  /// 0 disables the prior.
+  double gravity_sigma_deg = 0.3;
+  /// Huber threshold of the gravity residual in sigmas: a reading disturbed by
+  /// the device's acceleration pulls no harder than this.
+  double gravity_huber = 3.0;
 };
 
 struct BaResult {
@@ -122,6 +136,19 @@ struct PoseOnlyReprojectionError {
   Eigen::Vector2d uv_;
   double sqrt_info_;
   Intrinsics K_;
+};
+
+/// Gravity prior on a free pose [aa, t] (T_c_w): 3 residuals,
+/// (R(aa) e_z - up_c) / sigma_rad, about the tilt angle in sigmas.
+struct GravityPriorError {
+  GravityPriorError(const Eigen::Vector3d& up_c, double sigma_rad)
+      : up_c_(up_c.normalized()), inv_sigma_(1.0 / sigma_rad) {}
+  template <typename T>
+  bool operator()(const T* pose, T* residual) const;
+  /// Autodiff cost function on one block (pose [6]); ownership passes to the caller.
+  static ceres::CostFunction* Create(const Eigen::Vector3d& up_c, double sigma_rad);
+  Eigen::Vector3d up_c_;
+  double inv_sigma_;
 };
 
 /// SE3 <-> [angle-axis, translation].

@@ -200,6 +200,12 @@ class LocalMapper {
   /// keyframe was mapped, with its id; the keyframe may have been culled
   /// meanwhile. Set it before keyframes arrive; an empty function clears it.
   void setMappedCallback(std::function<void(KeyFrameId)> callback);
+  /// Called (on the mapping thread, without the map lock) after a redundant
+  /// keyframe was culled, with its id and its heir: the neighbour that shared
+  /// the most points with it (invalid when it had none). Whatever hangs on
+  /// the culled keyframe (plane and cell links, keyframe-attached objects)
+  /// moves to the heir or goes. An empty function clears it.
+  void setCulledCallback(std::function<void(KeyFrameId culled, KeyFrameId heir)> callback);
 
  private:
   void process(KeyFrameId kf);
@@ -222,7 +228,8 @@ class LocalMapper {
   std::deque<KeyFrameId> queue_;
   std::vector<MapPointId> recent_points_;
   std::vector<double> ba_ms_;
-  std::function<void(KeyFrameId)> mapped_callback_;  // guarded by queue_mutex_
+  std::function<void(KeyFrameId)> mapped_callback_;              // guarded by queue_mutex_
+  std::function<void(KeyFrameId, KeyFrameId)> culled_callback_;  // guarded by queue_mutex_
   std::atomic<bool> busy_{false}, stop_{false};
   std::thread thread_;
 };

@@ -215,6 +215,13 @@ class VoStore {
   size_t numLive() const;     ///< objects not deleted
   ObjectId nextId() const;    ///< the id the next registration gets
 
+  /// Re-hangs the objects attached to keyframe `from` (culled by the SLAM) on
+  /// `to` (its heir; invalid: they hang on none and reach no device in keyframe
+  /// mode). Not a change of the objects: versions stay. Written to the database
+  /// before memory changes; throws ecar::Error naming the database when the
+  /// write fails (nothing changes then). Returns how many moved.
+  size_t moveKeyFrame(KeyFrameId from, KeyFrameId to);
+
   /// Replaces the map bounds (e.g. by the map's extent plus a margin) for the
   /// checks of later changes. Throws ecar::Error when min > max or not finite.
   void setMapBounds(const Eigen::Vector3d& map_min, const Eigen::Vector3d& map_max);

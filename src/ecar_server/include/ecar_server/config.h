@@ -56,6 +56,8 @@ struct ServerConfig {
   int orb_features = 1000;
   /// Keyframes in the tracker's local map.
   int local_keyframes = 25;
+  /// SLAM: gravity prior of local bundle adjustment, degrees (0: off).
+  double gravity_sigma_deg = 0.3;
   /// A device's intrinsics may differ from the SLAM camera's by this fraction
   /// (fx, fy, cx, cy) and its distortion coefficients by this much.
   double camera_tolerance = 0.005;
