@@ -19,7 +19,7 @@ if [[ $(id -u) -ne 0 ]]; then SUDO="sudo"; fi
 
 COMMON_PKGS=(
   build-essential cmake pkg-config
-  libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev sqlite3 libyaml-cpp-dev nlohmann-json3-dev
+  libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev sqlite3 zlib1g-dev libyaml-cpp-dev nlohmann-json3-dev
   libgtest-dev googletest
   python3-numpy python3-matplotlib python3-yaml
   xvfb imagemagick clang-format

@@ -15,7 +15,7 @@
 
 #include <gtest/gtest.h>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 
 namespace ecar::testing {
 

@@ -18,9 +18,9 @@
 
 #include <time.h>
 
-#include "ecar_core/geometry.h"
-#include "ecar_core/optimizer.h"
-#include "ecar_core/trajectory_eval.h"
+#include "ecar_core/common/geometry.h"
+#include "ecar_core/slam/optimizer.h"
+#include "ecar_core/eval/trajectory_eval.h"
 
 namespace {
 

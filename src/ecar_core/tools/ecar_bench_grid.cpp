@@ -15,9 +15,10 @@
 #include <string>
 #include <vector>
 
-#include "ecar_core/error.h"
-#include "ecar_core/grid.h"
-#include "ecar_core/planes.h"
+#include "ecar_core/common/error.h"
+#include "ecar_core/structure/grid_caster.h"
+#include "ecar_core/structure/grid_map.h"
+#include "ecar_core/structure/plane_map.h"
 
 namespace {
 
@@ -79,7 +80,7 @@ int run(int argc, char** argv) {
   const ecar::PinholeCamera camera(cp);
   ecar::GridConfig config;
   config.window = window;
-  const ecar::GridConnection grid(config, camera);
+  const ecar::GridCaster grid(config, camera);
   const std::vector<ecar::Plane> planes = corridorPlanes();
 
   double t0 = threadCpuMs();

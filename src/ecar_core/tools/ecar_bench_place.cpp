@@ -25,10 +25,10 @@
 
 #include <opencv2/core.hpp>
 
-#include "ecar_core/error.h"
-#include "ecar_core/matcher.h"
-#include "ecar_core/place_recognition.h"
-#include "ecar_core/trajectory_eval.h"
+#include "ecar_core/common/error.h"
+#include "ecar_core/slam/matcher.h"
+#include "ecar_core/slam/place_recognition.h"
+#include "ecar_core/eval/trajectory_eval.h"
 
 namespace {
 

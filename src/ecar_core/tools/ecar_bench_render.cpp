@@ -16,11 +16,11 @@
 #include <opencv2/core.hpp>
 #include <opencv2/features2d.hpp>
 
-#include "ecar_core/error.h"
-#include "ecar_core/motion.h"
-#include "ecar_core/renderer.h"
-#include "ecar_core/scene.h"
-#include "ecar_core/trajectory_eval.h"
+#include "ecar_core/common/error.h"
+#include "ecar_core/sim/motion.h"
+#include "ecar_core/sim/renderer.h"
+#include "ecar_core/sim/scene.h"
+#include "ecar_core/eval/trajectory_eval.h"
 
 namespace {
 

@@ -11,9 +11,9 @@
 #include <string>
 #include <vector>
 
-#include "ecar_core/error.h"
-#include "ecar_core/trajectory.h"
-#include "ecar_core/trajectory_eval.h"
+#include "ecar_core/common/error.h"
+#include "ecar_core/io/trajectory.h"
+#include "ecar_core/eval/trajectory_eval.h"
 
 namespace {
 

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_sim/conversions.h"
 
 namespace ecar_device {

@@ -16,7 +16,7 @@
 #include <ecar_msgs/RoundTripMetrics.h>
 #include <ecar_msgs/Upload.h>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_device/conversions.h"
 #include "ecar_sim/conversions.h"
 

@@ -3,7 +3,7 @@
 #include <cctype>
 #include <cmath>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_device/device.h"
 
 namespace ecar_device {

@@ -2,7 +2,7 @@
 // launch/device.launch and config/device.yaml).
 #include <ros/ros.h>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_device/device.h"
 
 int main(int argc, char** argv) {

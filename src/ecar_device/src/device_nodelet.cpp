@@ -4,7 +4,7 @@
 #include <nodelet/nodelet.h>
 #include <pluginlib/class_list_macros.hpp>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_device/device.h"
 
 namespace ecar_device {

@@ -5,7 +5,7 @@
 #include <gtest/gtest.h>
 #include <yaml-cpp/yaml.h>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_device/device.h"
 
 namespace ecar_device {

@@ -5,7 +5,7 @@
 
 #include <opencv2/imgcodecs.hpp>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_sim/conversions.h"
 
 namespace ecar_server {

@@ -9,7 +9,7 @@
 #include <ros/ros.h>
 #include <pluginlib/class_list_macros.hpp>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_server/ros_params.h"
 #include "ecar_server/server_context.h"
 #include "ecar_sim/conversions.h"

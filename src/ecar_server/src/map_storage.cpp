@@ -6,8 +6,10 @@
 #include <limits>
 #include <memory>
 
-#include "ecar_core/error.h"
-#include "ecar_core/map_io.h"
+#include "ecar_core/common/error.h"
+#include "ecar_core/io/map_file.h"
+#include "ecar_core/io/slam_map_codec.h"
+#include "ecar_core/io/structure_codec.h"
 
 namespace ecar_server {
 namespace {

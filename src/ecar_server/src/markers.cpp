@@ -8,7 +8,8 @@
 #include <visualization_msgs/InteractiveMarkerControl.h>
 #include <Eigen/Geometry>
 
-#include "ecar_core/grid.h"
+#include "ecar_core/structure/grid_caster.h"
+#include "ecar_core/structure/grid_map.h"
 
 namespace ecar_server {
 namespace {

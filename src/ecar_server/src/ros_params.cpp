@@ -5,7 +5,7 @@
 #include <string>
 #include <vector>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 
 namespace ecar_server {
 namespace {

@@ -6,7 +6,7 @@
 #include <cmath>
 #include <sstream>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 
 namespace ecar_server {
 namespace {

@@ -4,7 +4,7 @@
 #include <chrono>
 #include <set>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 
 namespace ecar_server {
 namespace {
@@ -40,10 +40,10 @@ ecar::VoStore& Structure::vos() {
   return *vos_;
 }
 
-std::shared_ptr<const ecar::GridConnection> Structure::gridConnection(
+std::shared_ptr<const ecar::GridCaster> Structure::gridConnection(
     const ecar::PinholeCamera& camera) {
   std::lock_guard<std::mutex> lock(mutex_);
-  if (!caster_) caster_ = std::make_shared<const ecar::GridConnection>(config_.grid, camera);
+  if (!caster_) caster_ = std::make_shared<const ecar::GridCaster>(config_.grid, camera);
   return caster_;
 }
 
@@ -54,7 +54,7 @@ std::shared_ptr<const ecar::GridPlanes> Structure::gridPlanes() const {
 
 KeyFrameStructure Structure::integrateKeyFrame(const ecar::PlaneKeyFrameInput& input,
                                                const ecar::SE3& T_w_c,
-                                               const ecar::GridConnection& grid,
+                                               const ecar::GridCaster& grid,
                                                std::optional<uint64_t> generation) {
   KeyFrameStructure out;
   std::shared_lock<std::shared_mutex> replace(replace_mutex_);
@@ -99,7 +99,7 @@ void Structure::eraseKeyFrame(ecar::KeyFrameId id) {
 
 VisibleStructure Structure::visible(const ecar::SE3& T_w_c,
                                     const std::vector<ecar::KeyFrameId>& local_keyframes,
-                                    const ecar::GridConnection& grid) {
+                                    const ecar::GridCaster& grid) {
   const auto start = std::chrono::steady_clock::now();
   VisibleStructure out;
   std::shared_lock<std::shared_mutex> replace(replace_mutex_);

@@ -14,7 +14,7 @@
 #include <boost/make_shared.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_server/markers.h"
 #include "ecar_server/ros_params.h"
 #include "ecar_server/server_context.h"

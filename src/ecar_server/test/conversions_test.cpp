@@ -8,7 +8,7 @@
 #include <ros/serialization.h>
 #include <opencv2/imgcodecs.hpp>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 
 namespace ecar_server {
 namespace {

@@ -14,7 +14,7 @@
 #include <gtest/gtest.h>
 
 #include "../../ecar_core/test/test_support.h"
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "structure_fixtures.h"
 
 namespace ecar_server {

@@ -6,7 +6,7 @@
 #include <gtest/gtest.h>
 #include <Eigen/Geometry>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_server/config.h"
 
 namespace ecar_server {

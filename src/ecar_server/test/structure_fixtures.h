@@ -8,10 +8,10 @@
 
 #include <Eigen/Geometry>
 
-#include "ecar_core/camera.h"
-#include "ecar_core/geometry.h"
-#include "ecar_core/planes.h"
-#include "ecar_core/types.h"
+#include "ecar_core/common/camera.h"
+#include "ecar_core/common/geometry.h"
+#include "ecar_core/structure/plane_map.h"
+#include "ecar_core/common/types.h"
 
 namespace ecar_server::testing {
 

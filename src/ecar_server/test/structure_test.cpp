@@ -6,7 +6,7 @@
 
 #include <gtest/gtest.h>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 #include "ecar_server/markers.h"
 #include "structure_fixtures.h"
 

@@ -8,7 +8,7 @@
 #include <sensor_msgs/image_encodings.h>
 #include <Eigen/Geometry>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 
 namespace ecar_sim {
 namespace {

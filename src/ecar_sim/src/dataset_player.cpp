@@ -12,7 +12,7 @@
 #include <std_msgs/Bool.h>
 #include <opencv2/imgcodecs.hpp>
 
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 
 namespace ecar_sim {
 namespace {

@@ -51,7 +51,7 @@
 #include <std_msgs/UInt32.h>
 #include <tf2_ros/transform_broadcaster.h>
 
-#include "ecar_core/dataset.h"
+#include "ecar_core/io/dataset.h"
 #include "ecar_sim/conversions.h"
 
 namespace ecar_sim {

@@ -3,7 +3,7 @@
 #include <ros/ros.h>
 
 #include "dataset_player.h"
-#include "ecar_core/error.h"
+#include "ecar_core/common/error.h"
 
 int main(int argc, char** argv) {
   ros::init(argc, argv, "dataset_player");

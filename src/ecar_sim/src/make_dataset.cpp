@@ -26,11 +26,11 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "ecar_core/dataset_writer.h"
-#include "ecar_core/error.h"
-#include "ecar_core/motion.h"
-#include "ecar_core/renderer.h"
-#include "ecar_core/scene.h"
+#include "ecar_core/io/dataset_writer.h"
+#include "ecar_core/common/error.h"
+#include "ecar_core/sim/motion.h"
+#include "ecar_core/sim/renderer.h"
+#include "ecar_core/sim/scene.h"
 #include "ecar_sim/conversions.h"
 
 namespace {

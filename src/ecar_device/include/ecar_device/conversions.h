@@ -28,11 +28,11 @@
 #include <ecar_msgs/Upload.h>
 #include <ecar_msgs/VirtualObject.h>
 
-#include "ecar_core/device_objects.h"
-#include "ecar_core/device_tracker.h"
-#include "ecar_core/geometry.h"
-#include "ecar_core/planes.h"
-#include "ecar_core/vo_store.h"
+#include "ecar_core/device/device_objects.h"
+#include "ecar_core/device/device_tracker.h"
+#include "ecar_core/common/geometry.h"
+#include "ecar_core/structure/plane_map.h"
+#include "ecar_core/structure/vo_store.h"
 
 namespace ecar_device {
 

@@ -53,9 +53,9 @@
 #include <ecar_msgs/Upload.h>
 #include <ecar_msgs/VirtualObject.h>
 
-#include "ecar_core/camera.h"
-#include "ecar_core/device_objects.h"
-#include "ecar_core/device_tracker.h"
+#include "ecar_core/common/camera.h"
+#include "ecar_core/device/device_objects.h"
+#include "ecar_core/device/device_tracker.h"
 
 namespace ecar_device {
 

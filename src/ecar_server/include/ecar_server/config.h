@@ -5,11 +5,12 @@
 
 #include <string>
 
-#include "ecar_core/grid.h"
-#include "ecar_core/local_graph.h"
-#include "ecar_core/planes.h"
-#include "ecar_core/slam.h"
-#include "ecar_core/vo_store.h"
+#include "ecar_core/structure/grid_caster.h"
+#include "ecar_core/structure/grid_map.h"
+#include "ecar_core/sync/local_graph.h"
+#include "ecar_core/structure/plane_map.h"
+#include "ecar_core/slam/slam_system.h"
+#include "ecar_core/structure/vo_store.h"
 
 namespace ecar_server {
 

@@ -24,12 +24,12 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
-#include "ecar_core/error.h"
-#include "ecar_core/geometry.h"
-#include "ecar_core/local_graph.h"
-#include "ecar_core/planes.h"
-#include "ecar_core/slam.h"
-#include "ecar_core/vo_store.h"
+#include "ecar_core/common/error.h"
+#include "ecar_core/common/geometry.h"
+#include "ecar_core/sync/local_graph.h"
+#include "ecar_core/structure/plane_map.h"
+#include "ecar_core/slam/slam_system.h"
+#include "ecar_core/structure/vo_store.h"
 
 namespace ecar_server {
 

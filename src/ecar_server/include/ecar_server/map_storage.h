@@ -1,5 +1,5 @@
 // Saving and loading the server's whole map (SLAM keyframes and points,
-// planes, grid links, virtual objects) to one map file (ecar_core/map_io.h),
+// planes, grid links, virtual objects) to one map file (ecar_core/io/map_file.h),
 // so that a session resumes in the same coordinate system. ROS-free: the
 // MapStorage nodelet wraps these in /ecar/save_map and /ecar/load_map.
 //

@@ -11,11 +11,11 @@
 #include <visualization_msgs/InteractiveMarker.h>
 #include <visualization_msgs/MarkerArray.h>
 
-#include "ecar_core/geometry.h"
-#include "ecar_core/map.h"
-#include "ecar_core/planes.h"
-#include "ecar_core/types.h"
-#include "ecar_core/vo_store.h"
+#include "ecar_core/common/geometry.h"
+#include "ecar_core/slam/map.h"
+#include "ecar_core/structure/plane_map.h"
+#include "ecar_core/common/types.h"
+#include "ecar_core/structure/vo_store.h"
 
 namespace ecar_server {
 

@@ -19,10 +19,10 @@
 #include <string>
 #include <vector>
 
-#include "ecar_core/camera.h"
-#include "ecar_core/local_graph.h"
-#include "ecar_core/slam.h"
-#include "ecar_core/types.h"
+#include "ecar_core/common/camera.h"
+#include "ecar_core/sync/local_graph.h"
+#include "ecar_core/slam/slam_system.h"
+#include "ecar_core/common/types.h"
 #include "ecar_server/config.h"
 #include "ecar_server/structure.h"
 

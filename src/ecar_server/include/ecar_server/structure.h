@@ -22,11 +22,14 @@
 #include <string>
 #include <vector>
 
-#include "ecar_core/camera.h"
-#include "ecar_core/grid.h"
-#include "ecar_core/map_io.h"
-#include "ecar_core/planes.h"
-#include "ecar_core/vo_store.h"
+#include "ecar_core/common/camera.h"
+#include "ecar_core/structure/grid_caster.h"
+#include "ecar_core/structure/grid_map.h"
+#include "ecar_core/io/map_file.h"
+#include "ecar_core/io/slam_map_codec.h"
+#include "ecar_core/io/structure_codec.h"
+#include "ecar_core/structure/plane_map.h"
+#include "ecar_core/structure/vo_store.h"
 #include "ecar_server/config.h"
 
 namespace ecar_server {
@@ -62,7 +65,7 @@ class Structure {
   ecar::VoStore& vos();
 
   /// The grid caster of a camera (created once; later cameras are assumed the same).
-  std::shared_ptr<const ecar::GridConnection> gridConnection(const ecar::PinholeCamera& camera);
+  std::shared_ptr<const ecar::GridCaster> gridConnection(const ecar::PinholeCamera& camera);
   /// The current planes prepared for casting (never null).
   std::shared_ptr<const ecar::GridPlanes> gridPlanes() const;
 
@@ -73,7 +76,7 @@ class Structure {
   /// map was loaded since, the input is dropped (result.stale) so that no
   /// plane of the old map's coordinates enters the new one.
   KeyFrameStructure integrateKeyFrame(const ecar::PlaneKeyFrameInput& input, const ecar::SE3& T_w_c,
-                                      const ecar::GridConnection& grid,
+                                      const ecar::GridCaster& grid,
                                       std::optional<uint64_t> generation = std::nullopt);
   /// Forgets a keyframe's plane and cell links.
   void eraseKeyFrame(ecar::KeyFrameId id);
@@ -101,10 +104,10 @@ class Structure {
   /// graph_keyframe_planes); objects (none, with `error` set, when the VO store
   /// cannot be opened): grid mode, the live VOs attached to a
   /// visible cell (radius 1) or whose position, start or end passes
-  /// GridConnection::isVisible; keyframe mode, the VOs of the local keyframes.
+  /// GridCaster::isVisible; keyframe mode, the VOs of the local keyframes.
   VisibleStructure visible(const ecar::SE3& T_w_c,
                            const std::vector<ecar::KeyFrameId>& local_keyframes,
-                           const ecar::GridConnection& grid);
+                           const ecar::GridCaster& grid);
 
   /// The cells last found visible per device (for rviz).
   void setDeviceCells(const std::string& device, std::vector<ecar::CellKey> cells);
@@ -124,7 +127,7 @@ class Structure {
   mutable std::mutex mutex_;  // guards the members below
   std::shared_ptr<const ecar::GridPlanes> grid_planes_;
   uint64_t grid_planes_revision_ = 0;
-  std::shared_ptr<const ecar::GridConnection> caster_;
+  std::shared_ptr<const ecar::GridCaster> caster_;
   std::unique_ptr<ecar::VoStore> vos_;
   std::string vos_error_;  ///< why the store could not be opened
   std::map<std::string, std::vector<ecar::CellKey>> device_cells_;

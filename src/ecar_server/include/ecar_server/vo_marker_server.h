@@ -27,7 +27,7 @@
 #include <ros/ros.h>
 #include <visualization_msgs/InteractiveMarkerFeedback.h>
 
-#include "ecar_core/vo_store.h"
+#include "ecar_core/structure/vo_store.h"
 
 namespace ecar_server {
 

@@ -22,11 +22,11 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
-#include "ecar_core/camera.h"
-#include "ecar_core/dataset.h"
-#include "ecar_core/geometry.h"
-#include "ecar_core/planes.h"
-#include "ecar_core/vo_store.h"
+#include "ecar_core/common/camera.h"
+#include "ecar_core/io/dataset.h"
+#include "ecar_core/common/geometry.h"
+#include "ecar_core/structure/plane_map.h"
+#include "ecar_core/structure/vo_store.h"
 
 namespace ecar_sim {
 

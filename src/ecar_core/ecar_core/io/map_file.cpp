@@ -1,0 +1,241 @@
+#include "ecar_core/io/map_file.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <set>
+
+#include "ecar_core/common/error.h"
+
+namespace ecar {
+namespace {
+
+constexpr std::array<uint8_t, 8> kMagic = {'E', 'C', 'A', 'R', 'M', 'A', 'P', 0};
+constexpr uint32_t kMaxSections = 4096;
+
+std::string errnoText() { return std::strerror(errno); }
+
+std::string quoted(const std::string& s) { return "'" + s + "'"; }
+
+bool validSectionName(const std::string& name) {
+  if (name.empty() || name.size() > 255) return false;
+  for (const char c : name) {
+    if (c < 0x21 || c > 0x7e) return false;
+  }
+  return true;
+}
+
+// Writes all of `bytes` to the open descriptor `fd`.
+bool writeAll(int fd, const std::vector<uint8_t>& bytes) {
+  size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return false;
+    done += static_cast<size_t>(n);
+  }
+  return true;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------- MapFileWriter
+
+void MapFileWriter::addSection(const std::string& name, std::vector<uint8_t> bytes) {
+  if (!validSectionName(name)) {
+    throw Error("MapFileWriter::addSection: invalid section name " + quoted(name) +
+                " (1..255 printable ASCII characters)");
+  }
+  for (const auto& s : sections_) {
+    if (s.first == name)
+      throw Error("MapFileWriter::addSection: duplicate section " + quoted(name));
+  }
+  sections_.emplace_back(name, std::move(bytes));
+}
+
+std::vector<uint8_t> MapFileWriter::serialize() const {
+  ByteWriter header;
+  header.bytes(kMagic.data(), kMagic.size());
+  header.u32(kMapFileVersion);
+  header.u32(static_cast<uint32_t>(sections_.size()));
+  size_t header_size = header.size() + 4;  // + the header CRC
+  for (const auto& s : sections_) header_size += 1 + s.first.size() + 8 + 8 + 4;
+  uint64_t offset = header_size;
+  for (const auto& s : sections_) {
+    header.u8(static_cast<uint8_t>(s.first.size()));
+    header.bytes(s.first.data(), s.first.size());
+    header.u64(offset);
+    header.u64(s.second.size());
+    header.u32(crc32(s.second.data(), s.second.size()));
+    offset += s.second.size();
+  }
+  header.u32(crc32(header.data().data(), header.size()));
+  std::vector<uint8_t> out = header.release();
+  out.reserve(offset);
+  for (const auto& s : sections_) out.insert(out.end(), s.second.begin(), s.second.end());
+  return out;
+}
+
+void MapFileWriter::write(const std::string& path) const {
+  const std::vector<uint8_t> bytes = serialize();
+  // A name of its own per write: two writers of one path never share it.
+  static std::atomic<uint32_t> writes{0};
+  const std::string tmp =
+      path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(writes++);
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    throw Error("map file " + quoted(path) + ": cannot create its temporary file " + quoted(tmp) +
+                ": " + errnoText());
+  }
+  if (!writeAll(fd, bytes) || ::fsync(fd) != 0) {
+    const std::string why = errnoText();
+    ::close(fd);
+    ::unlink(tmp.c_str());
+    throw Error("map file " + quoted(path) + ": writing " + quoted(tmp) + " failed: " + why);
+  }
+  if (::close(fd) != 0) {
+    const std::string why = errnoText();
+    ::unlink(tmp.c_str());
+    throw Error("map file " + quoted(path) + ": closing " + quoted(tmp) + " failed: " + why);
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    const std::string why = errnoText();
+    ::unlink(tmp.c_str());
+    throw Error("map file " + quoted(path) + ": cannot rename " + quoted(tmp) + " to it: " + why);
+  }
+  // The rename itself reaches the disk with its directory.
+  std::string dir = std::filesystem::path(path).parent_path().string();
+  if (dir.empty()) dir = ".";
+  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd >= 0) {
+    ::fsync(dfd);
+    ::close(dfd);
+  }
+}
+
+// ---------------------------------------------------------------- MapFileReader
+
+MapFileReader MapFileReader::open(const std::string& path) {
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
+  if (!in) throw Error("map file " + quoted(path) + ": cannot open: " + errnoText());
+  const std::streamoff size = in.tellg();
+  if (size < 0) throw Error("map file " + quoted(path) + ": cannot determine its size");
+  std::vector<uint8_t> bytes(static_cast<size_t>(size));
+  in.seekg(0);
+  if (size > 0 && !in.read(reinterpret_cast<char*>(bytes.data()), size)) {
+    throw Error("map file " + quoted(path) + ": read error");
+  }
+  return parse(std::move(bytes), path);
+}
+
+MapFileReader MapFileReader::parse(std::vector<uint8_t> bytes, const std::string& name) {
+  MapFileReader file;
+  file.name_ = name;
+  auto shared = std::make_shared<const std::vector<uint8_t>>(std::move(bytes));
+  file.bytes_ = shared;
+  const std::vector<uint8_t>& data = *shared;
+  const std::string where = "map file " + quoted(name);
+  if (data.size() < kMagic.size() || !std::equal(kMagic.begin(), kMagic.end(), data.begin())) {
+    throw Error(where + ": not an eCAR map file (bad magic" +
+                (data.size() < kMagic.size() ? ", only " + std::to_string(data.size()) + " bytes"
+                                             : std::string()) +
+                ")");
+  }
+  ByteReader in(data.data(), data.size(), where + ", header");
+  uint8_t magic[8];
+  in.bytes(magic, sizeof(magic), "magic");
+  file.version_ = in.u32("version");
+  if (file.version_ != kMapFileVersion) {
+    throw Error(where + ": format version " + std::to_string(file.version_) +
+                ", this build reads version " + std::to_string(kMapFileVersion));
+  }
+  const uint32_t n = in.u32("section count");
+  if (n > kMaxSections) in.fail("section count", std::to_string(n) + " sections (corrupted)");
+  std::set<std::string> names;
+  for (uint32_t i = 0; i < n; ++i) {
+    in.setScope("section table entry " + std::to_string(i));
+    Entry e;
+    const uint8_t length = in.u8("name length");
+    e.name.resize(length);
+    in.bytes(e.name.data(), length, "name");
+    e.offset = in.u64("offset");
+    e.size = in.u64("length");
+    e.crc = in.u32("crc");
+    if (!validSectionName(e.name) || !names.insert(e.name).second) {
+      in.fail("name", "invalid or duplicate section name (corrupted header)");
+    }
+    file.entries_.push_back(std::move(e));
+  }
+  in.setScope("");
+  const size_t header_end = in.offset();
+  const uint32_t header_crc = in.u32("header crc");
+  if (crc32(data.data(), header_end) != header_crc) {
+    throw Error(where + ": header CRC mismatch (the header is corrupted)");
+  }
+  uint64_t expected = in.offset();
+  for (const Entry& e : file.entries_) {
+    if (e.offset != expected) {
+      throw Error(where + ", section " + quoted(e.name) + ": starts at byte " +
+                  std::to_string(e.offset) + ", expected " + std::to_string(expected) +
+                  " (corrupted header)");
+    }
+    if (e.size > data.size() || e.offset > data.size() - e.size) {
+      throw Error(where + ", section " + quoted(e.name) + ": truncated (" + std::to_string(e.size) +
+                  " bytes from byte " + std::to_string(e.offset) + ", the file has " +
+                  std::to_string(data.size()) + ")");
+    }
+    expected = e.offset + e.size;
+  }
+  if (expected != data.size()) {
+    throw Error(where + ": " + std::to_string(data.size() - expected) +
+                " unexpected bytes after the last section");
+  }
+  return file;
+}
+
+std::vector<std::string> MapFileReader::sectionNames() const {
+  std::vector<std::string> names;
+  for (const Entry& e : entries_) names.push_back(e.name);
+  return names;
+}
+
+bool MapFileReader::has(const std::string& section) const {
+  for (const Entry& e : entries_) {
+    if (e.name == section) return true;
+  }
+  return false;
+}
+
+const MapFileReader::Entry& MapFileReader::checked(const std::string& section) const {
+  for (const Entry& e : entries_) {
+    if (e.name != section) continue;
+    const uint32_t crc = crc32(bytes_->data() + e.offset, e.size);
+    if (crc != e.crc) {
+      throw Error("map file " + quoted(name_) + ", section " + quoted(section) +
+                  ": CRC mismatch (the section is corrupted)");
+    }
+    return e;
+  }
+  throw Error("map file " + quoted(name_) + ": no section " + quoted(section));
+}
+
+ByteReader MapFileReader::reader(const std::string& section) const {
+  const Entry& e = checked(section);
+  return ByteReader(bytes_->data() + e.offset, e.size,
+                    "map file " + quoted(name_) + ", section " + quoted(section), bytes_);
+}
+
+std::vector<uint8_t> MapFileReader::section(const std::string& section) const {
+  const Entry& e = checked(section);
+  return std::vector<uint8_t>(bytes_->begin() + e.offset, bytes_->begin() + e.offset + e.size);
+}
+
+}  // namespace ecar

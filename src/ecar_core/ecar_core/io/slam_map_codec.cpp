@@ -1,0 +1,318 @@
+#include "ecar_core/io/slam_map_codec.h"
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+
+#include "ecar_core/common/error.h"
+
+namespace ecar {
+namespace {
+
+/// Layout of the "slam" section's contents (independent of the container's).
+constexpr uint32_t kSlamSectionVersion = 1;
+constexpr size_t kDescriptorBytes = 32;
+constexpr size_t kKeypointBytes = 6 * 4;  // x, y, size, angle, response, octave
+constexpr size_t kObservationBytes = 8;   // keyframe id, keypoint index
+
+bool nearlyEqual(double a, double b) {
+  return std::fabs(a - b) <= 1e-9 * std::max(1.0, std::max(std::fabs(a), std::fabs(b)));
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------- the SLAM map
+//
+// Layout of the "slam" section (version kSlamSectionVersion):
+//   u32 version; camera: i32 width, i32 height, f64 fx, fy, cx, cy, f64 x5
+//   distortion; u32 pyramid levels, f32 scale per level; u32 epoch, u32 next
+//   keyframe id, u32 next point id;
+//   u32 keyframe count, each: u32 id, u32 device, u32 frame index,
+//     f64 timestamp, se3 T_c_w, u8 flags (1 bad, 2 gravity, 4 odometry),
+//     [vec3 gravity_c], [se3 T_o_c], u32 N, N x (f32 x, y, size, angle,
+//     response, i32 octave), u8 descriptors present, [N x 32 bytes],
+//     N x u32 point id (0: none);
+//   u32 point count, each: u32 id, vec3 p_w, vec3 normal, f32 min and max
+//     distance, u32 reference and first keyframe, i32 visible, i32 found,
+//     u32 version, u8 flags (1 bad, 2 descriptor), [32 bytes descriptor],
+//     u32 M, M x (u32 keyframe id, i32 keypoint index).
+
+std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& camera) {
+  ByteWriter out;
+  out.u32(kSlamSectionVersion);
+  const CameraParams& c = camera.params();
+  out.i32(c.width);
+  out.i32(c.height);
+  for (const double v : {c.fx, c.fy, c.cx, c.cy}) out.f64(v);
+  for (const double v : c.dist) out.f64(v);
+  const ScaleInfo& scale = map.scale();
+  out.u32(static_cast<uint32_t>(scale.levels()));
+  for (const float s : scale.scale) out.f32(s);
+  out.u32(map.epoch());
+  out.u32(map.nextKeyFrameId().value);
+  out.u32(map.nextPointId().value);
+
+  const std::vector<KeyFrameId> keyframes = map.keyframeIds();
+  out.u32(static_cast<uint32_t>(keyframes.size()));
+  for (const KeyFrameId id : keyframes) {
+    const KeyFrame& kf = *map.keyframe(id);
+    const Frame& f = kf.features;
+    out.u32(kf.id.value);
+    out.u32(kf.device.value);
+    out.u32(kf.frame_index);
+    out.f64(kf.timestamp);
+    out.se3(kf.T_c_w);
+    out.u8(static_cast<uint8_t>((kf.bad ? 1 : 0) | (f.gravity_c ? 2 : 0) | (f.T_o_c ? 4 : 0)));
+    if (f.gravity_c) out.vec3(*f.gravity_c);
+    if (f.T_o_c) out.se3(*f.T_o_c);
+    const bool has_descriptors = !f.descriptors.empty();
+    if (has_descriptors && (f.descriptors.rows != static_cast<int>(f.keypoints.size()) ||
+                            f.descriptors.cols != static_cast<int>(kDescriptorBytes) ||
+                            f.descriptors.type() != CV_8U)) {
+      throw Error("encodeSlamMap: keyframe " + std::to_string(id.value) +
+                  " has descriptors unlike its keypoints (not N x 32 CV_8U)");
+    }
+    out.u32(static_cast<uint32_t>(f.keypoints.size()));
+    for (const cv::KeyPoint& k : f.keypoints) {
+      out.f32(k.pt.x);
+      out.f32(k.pt.y);
+      out.f32(k.size);
+      out.f32(k.angle);
+      out.f32(k.response);
+      out.i32(k.octave);
+    }
+    // Descriptors: one 32-byte row per keypoint (none when the matrix is empty).
+    out.u8(has_descriptors ? 1 : 0);
+    for (int r = 0; has_descriptors && r < f.descriptors.rows; ++r) {
+      out.bytes(f.descriptors.ptr<uint8_t>(r), kDescriptorBytes);
+    }
+    for (const MapPointId pid : kf.points) out.u32(pid.value);
+  }
+
+  const std::vector<MapPointId> points = map.pointIds();
+  out.u32(static_cast<uint32_t>(points.size()));
+  for (const MapPointId id : points) {
+    const MapPoint& p = *map.point(id);
+    out.u32(p.id.value);
+    out.vec3(p.p_w);
+    out.vec3(p.normal);
+    out.f32(p.min_distance);
+    out.f32(p.max_distance);
+    out.u32(p.reference.value);
+    out.u32(p.first_keyframe.value);
+    out.i32(p.visible);
+    out.i32(p.found);
+    out.u32(p.version);
+    const bool has_descriptor = !p.descriptor.empty();
+    if (has_descriptor && (p.descriptor.total() != kDescriptorBytes ||
+                           p.descriptor.type() != CV_8U || !p.descriptor.isContinuous())) {
+      throw Error("encodeSlamMap: point " + std::to_string(id.value) +
+                  " has a descriptor other than 1 x 32 CV_8U");
+    }
+    out.u8(static_cast<uint8_t>((p.bad ? 1 : 0) | (has_descriptor ? 2 : 0)));
+    if (has_descriptor) out.bytes(p.descriptor.ptr<uint8_t>(0), kDescriptorBytes);
+    out.u32(static_cast<uint32_t>(p.observations.size()));
+    for (const auto& [kid, idx] : p.observations) {
+      out.u32(kid.value);
+      out.i32(idx);
+    }
+  }
+  return out.release();
+}
+
+namespace {
+
+// Reads the camera and pyramid the map was made with and checks them against
+// this system's: keypoints, descriptors and distances mean nothing with others.
+void checkCameraAndScale(ByteReader* in, const PinholeCamera& camera, const ScaleInfo& scale) {
+  const CameraParams& c = camera.params();
+  const auto same_int = [in](const char* field, int saved, int ours) {
+    if (saved != ours) {
+      in->fail(field, "the map was made with " + std::to_string(saved) + ", this camera has " +
+                          std::to_string(ours));
+    }
+  };
+  const auto same = [in](const char* field, double saved, double ours) {
+    if (!nearlyEqual(saved, ours)) {
+      in->fail(field, "the map was made with " + std::to_string(saved) + ", this camera has " +
+                          std::to_string(ours));
+    }
+  };
+  same_int("camera.width", in->i32("camera.width"), c.width);
+  same_int("camera.height", in->i32("camera.height"), c.height);
+  same("camera.fx", in->f64("camera.fx"), c.fx);
+  same("camera.fy", in->f64("camera.fy"), c.fy);
+  same("camera.cx", in->f64("camera.cx"), c.cx);
+  same("camera.cy", in->f64("camera.cy"), c.cy);
+  for (size_t i = 0; i < c.dist.size(); ++i)
+    same("camera.distortion", in->f64("camera.distortion"), c.dist[i]);
+  const uint32_t levels = in->u32("pyramid.levels");
+  if (levels != static_cast<uint32_t>(scale.levels())) {
+    in->fail("pyramid.levels", "the map was made with " + std::to_string(levels) +
+                                   " ORB levels, this system has " +
+                                   std::to_string(scale.levels()));
+  }
+  for (uint32_t l = 0; l < levels; ++l) {
+    const float s = in->f32("pyramid.scale");
+    if (std::fabs(s - scale.scale[l]) > 1e-5f * scale.scale[l]) {
+      in->fail("pyramid.scale", "level " + std::to_string(l) + " scale " + std::to_string(s) +
+                                    ", this system has " + std::to_string(scale.scale[l]));
+    }
+  }
+}
+
+}  // namespace
+
+std::unique_ptr<Map> decodeSlamMap(ByteReader in, const PinholeCamera& camera,
+                                   const ScaleInfo& scale) {
+  const uint32_t version = in.u32("slam version");
+  if (version != kSlamSectionVersion) {
+    in.fail("slam version", "version " + std::to_string(version) + ", this build reads version " +
+                                std::to_string(kSlamSectionVersion));
+  }
+  checkCameraAndScale(&in, camera, scale);
+  const uint32_t epoch = in.u32("epoch");
+  const KeyFrameId next_keyframe(in.u32("next keyframe id"));
+  const MapPointId next_point(in.u32("next point id"));
+
+  auto map = std::make_unique<Map>(scale);
+  const uint32_t num_keyframes = in.count("keyframe count", 4 + 4 + 4 + 8 + 96 + 1 + 4 + 1);
+  for (uint32_t k = 0; k < num_keyframes; ++k) {
+    in.setScope("keyframe #" + std::to_string(k));
+    KeyFrame kf;
+    kf.id = KeyFrameId(in.u32("id"));
+    if (!kf.id.valid() || !(kf.id < next_keyframe) || map->keyframe(kf.id)) {
+      in.fail("id", "keyframe id " + std::to_string(kf.id.value) +
+                        " is 0, duplicate or not below the next id " +
+                        std::to_string(next_keyframe.value));
+    }
+    in.setScope("keyframe " + std::to_string(kf.id.value));
+    kf.device = DeviceId(in.u32("device"));
+    kf.frame_index = in.u32("frame index");
+    kf.timestamp = in.f64("timestamp");
+    kf.T_c_w = in.se3("T_c_w");
+    Frame& f = kf.features;
+    f.frame_index = kf.frame_index;
+    f.timestamp = kf.timestamp;
+    const uint8_t flags = in.u8("flags");
+    if (flags & ~7u) in.fail("flags", "unknown flags " + std::to_string(flags));
+    kf.bad = (flags & 1) != 0;
+    if (flags & 2) {
+      f.gravity_c = in.vec3("gravity");
+      if (!f.gravity_c->allFinite()) in.fail("gravity", "non-finite");
+    }
+    if (flags & 4) f.T_o_c = in.se3("odometry T_o_c");
+    const uint32_t n = in.count("keypoint count", kKeypointBytes + 4);
+    f.keypoints.resize(n);
+    for (uint32_t i = 0; i < n; ++i) {
+      cv::KeyPoint& kp = f.keypoints[i];
+      kp.pt.x = in.f32("keypoint.x");
+      kp.pt.y = in.f32("keypoint.y");
+      kp.size = in.f32("keypoint.size");
+      kp.angle = in.f32("keypoint.angle");
+      kp.response = in.f32("keypoint.response");
+      kp.octave = in.i32("keypoint.octave");
+      if (!std::isfinite(kp.pt.x) || !std::isfinite(kp.pt.y) || !std::isfinite(kp.angle) ||
+          !std::isfinite(kp.size) || kp.octave < 0 || kp.octave >= scale.levels()) {
+        in.fail("keypoint", "keypoint " + std::to_string(i) +
+                                " has a non-finite value or an octave outside the pyramid");
+      }
+    }
+    const uint8_t has_descriptors = in.u8("descriptors present");
+    if (has_descriptors > 1) in.fail("descriptors present", "not 0 or 1");
+    if (has_descriptors) {
+      if (n * kDescriptorBytes > in.remaining()) {
+        in.fail("descriptors", "truncated (" + std::to_string(n) + " rows of 32 bytes)");
+      }
+      f.descriptors.create(static_cast<int>(n), static_cast<int>(kDescriptorBytes), CV_8U);
+      for (uint32_t i = 0; i < n; ++i) {
+        in.bytes(f.descriptors.ptr<uint8_t>(static_cast<int>(i)), kDescriptorBytes, "descriptors");
+      }
+    }
+    kf.points.resize(n);
+    for (uint32_t i = 0; i < n; ++i) kf.points[i] = MapPointId(in.u32("point id"));
+    f.finalize(camera);
+    map->insertKeyFrame(std::move(kf));
+  }
+
+  in.setScope("");
+  const uint32_t num_points = in.count("point count", 4 + 48 + 8 + 8 + 12 + 1 + 4);
+  for (uint32_t k = 0; k < num_points; ++k) {
+    in.setScope("point #" + std::to_string(k));
+    MapPoint p;
+    p.id = MapPointId(in.u32("id"));
+    if (!p.id.valid() || !(p.id < next_point) || map->point(p.id)) {
+      in.fail("id", "point id " + std::to_string(p.id.value) +
+                        " is 0, duplicate or not below the next id " +
+                        std::to_string(next_point.value));
+    }
+    in.setScope("point " + std::to_string(p.id.value));
+    p.p_w = in.vec3("p_w");
+    p.normal = in.vec3("normal");
+    if (!p.p_w.allFinite() || !p.normal.allFinite())
+      in.fail("p_w", "non-finite position or normal");
+    p.min_distance = in.f32("min distance");
+    p.max_distance = in.f32("max distance");
+    p.reference = KeyFrameId(in.u32("reference keyframe"));
+    p.first_keyframe = KeyFrameId(in.u32("first keyframe"));
+    p.visible = in.i32("visible");
+    p.found = in.i32("found");
+    p.version = in.u32("version");
+    const uint8_t flags = in.u8("flags");
+    if (flags & ~3u) in.fail("flags", "unknown flags " + std::to_string(flags));
+    p.bad = (flags & 1) != 0;
+    if (flags & 2) {
+      p.descriptor.create(1, static_cast<int>(kDescriptorBytes), CV_8U);
+      in.bytes(p.descriptor.ptr<uint8_t>(0), kDescriptorBytes, "descriptor");
+    }
+    const uint32_t num_obs = in.count("observation count", kObservationBytes);
+    for (uint32_t o = 0; o < num_obs; ++o) {
+      const KeyFrameId kid(in.u32("observation keyframe"));
+      const int32_t idx = in.i32("observation keypoint");
+      const KeyFrame* kf = map->keyframe(kid);
+      if (!kf) {
+        in.fail("observation keyframe",
+                "keyframe " + std::to_string(kid.value) + " is not in the map");
+      }
+      if (idx < 0 || idx >= static_cast<int32_t>(kf->points.size()) || kf->points[idx] != p.id) {
+        in.fail("observation keypoint", "keypoint " + std::to_string(idx) + " of keyframe " +
+                                            std::to_string(kid.value) +
+                                            " does not hold this point");
+      }
+      if (!p.observations.emplace(kid, idx).second) {
+        in.fail("observation keyframe", "keyframe " + std::to_string(kid.value) + " twice");
+      }
+    }
+    map->insertPoint(std::move(p));
+  }
+  in.setScope("");
+  in.expectEnd();
+  map->setCounters(next_keyframe, next_point, epoch);
+  for (const KeyFrameId id : map->keyframeIds()) map->updateCovisibility(id);
+  const std::string problem = map->checkConsistency();
+  if (!problem.empty()) in.fail("map", "inconsistent map: " + problem);
+  return map;
+}
+
+PinholeCamera decodeSlamCamera(ByteReader in) {
+  const uint32_t version = in.u32("slam version");
+  if (version != kSlamSectionVersion) {
+    in.fail("slam version", "version " + std::to_string(version) + ", this build reads version " +
+                                std::to_string(kSlamSectionVersion));
+  }
+  CameraParams c;
+  c.width = in.i32("camera.width");
+  c.height = in.i32("camera.height");
+  c.fx = in.f64("camera.fx");
+  c.fy = in.f64("camera.fy");
+  c.cx = in.f64("camera.cx");
+  c.cy = in.f64("camera.cy");
+  for (double& d : c.dist) d = in.f64("camera.distortion");
+  try {
+    return PinholeCamera(c);
+  } catch (const Error& e) {
+    in.fail("camera", e.what());
+  }
+}
+
+}  // namespace ecar

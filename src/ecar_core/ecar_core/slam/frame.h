@@ -1,0 +1,68 @@
+// One image's features, ready for tracking: keypoints (as detected, in the
+// distorted image), their undistorted positions, descriptors, and a grid that
+// finds the keypoints near a pixel quickly.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "ecar_core/common/camera.h"
+#include "ecar_core/slam/features.h"
+#include "ecar_core/common/geometry.h"
+#include "ecar_core/slam/optimizer.h"
+
+namespace ecar {
+
+/// Keypoint indices bucketed by undistorted position.
+class FeatureGrid {
+ public:
+  static constexpr int kCell = 16;  ///< px
+  void build(const std::vector<Eigen::Vector2d>& points, const std::vector<cv::KeyPoint>& kps,
+             int width, int height);
+  /// Indices of keypoints within `radius` px of (u, v) whose octave lies in
+  /// [min_level, max_level] (-1: no bound). Appends to *out after clearing it.
+  void query(double u, double v, double radius, int min_level, int max_level,
+             std::vector<int>* out) const;
+
+ private:
+  struct Entry {
+    float u, v;
+    int index;
+    int octave;
+  };
+  int cols_ = 0, rows_ = 0;
+  std::vector<std::vector<Entry>> cells_;  ///< own copies: a Frame can be copied
+};
+
+/// Pyramid constants shared by frames and keyframes.
+struct ScaleInfo {
+  std::vector<float> scale, sigma2, inv_sigma2;
+  float log_scale_factor = 0.0f;
+  int levels() const { return static_cast<int>(scale.size()); }
+  static ScaleInfo fromConfig(const OrbConfig& config);
+};
+
+struct Frame {
+  uint32_t frame_index = 0;
+  double timestamp = 0.0;
+  int width = 0, height = 0;                 ///< image size (px)
+  std::vector<cv::KeyPoint> keypoints;       ///< distorted pixels, angle, octave
+  std::vector<Eigen::Vector2d> undistorted;  ///< undistorted pixels
+  cv::Mat descriptors;                       ///< N x 32, CV_8U
+  std::optional<Eigen::Vector3d> gravity_c;
+  std::optional<SE3> T_o_c;  ///< device odometry, when the upload has it
+  FeatureGrid grid;
+
+  size_t size() const { return keypoints.size(); }
+  /// Fills undistorted positions and the grid from keypoints (call after detection).
+  void finalize(const PinholeCamera& camera);
+};
+
+/// Intrinsics of the undistorted pinhole of a camera.
+Intrinsics intrinsicsOf(const PinholeCamera& camera);
+
+}  // namespace ecar

@@ -1,0 +1,88 @@
+// Local mapping of the shared map (ORB-SLAM's local mapping, for keyframes of
+// every device): new points by triangulation with covisible keyframes, fusion
+// of duplicates, local bundle adjustment (Ceres) and culling of redundant
+// points and keyframes.
+//
+//   LocalMapper mapper(&map, &place_index, camera, config);
+//   mapper.startThread();   // or processPending() after each insert (deterministic)
+//   mapper.insert(keyframe_id);
+//
+// insert() is thread-safe; the mapping runs on the mapper's own thread and
+// takes the map's write lock only for short updates (map.h).
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <functional>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "ecar_core/common/camera.h"
+#include "ecar_core/common/types.h"
+#include "ecar_core/slam/map.h"
+#include "ecar_core/slam/optimizer.h"
+#include "ecar_core/slam/place_recognition.h"
+#include "ecar_core/slam/slam_config.h"
+
+namespace ecar {
+
+class LocalMapper {
+ public:
+  /// `keypoints` may be null.
+  LocalMapper(Map* map, PlaceIndex* index, const PinholeCamera& camera, const SlamConfig& config,
+              KeypointIndex* keypoints = nullptr);
+  ~LocalMapper();
+  void insert(KeyFrameId kf);
+  /// Maps every queued keyframe now (synchronous mode).
+  void processPending();
+  void startThread();
+  /// Maps the keyframes still queued, then stops the thread.
+  void stopThread();
+  /// Drops the queued keyframes and the new points awaiting culling (the map
+  /// was replaced): waits for the keyframe being mapped, and leaves the thread
+  /// running if it was. Call while no tracker can insert keyframes.
+  void reset();
+  bool idle() const;
+  /// Times of the local bundle adjustments so far (ms).
+  std::vector<double> baTimes() const;
+  /// Called (on the mapping thread, or inside processPending()) after each
+  /// keyframe was mapped, with its id; the keyframe may have been culled
+  /// meanwhile. Set it before keyframes arrive; an empty function clears it.
+  void setMappedCallback(std::function<void(KeyFrameId)> callback);
+  /// Called (on the mapping thread, without the map lock) after a redundant
+  /// keyframe was culled, with its id and its heir: the neighbour that shared
+  /// the most points with it (invalid when it had none). Whatever hangs on
+  /// the culled keyframe (plane and cell links, keyframe-attached objects)
+  /// moves to the heir or goes. An empty function clears it.
+  void setCulledCallback(std::function<void(KeyFrameId culled, KeyFrameId heir)> callback);
+
+ private:
+  void process(KeyFrameId kf);
+  void cullRecentPoints(KeyFrameId kf);
+  int triangulateNewPoints(KeyFrameId kf);
+  int fuseDuplicates(KeyFrameId kf);
+  int fuseInto(KeyFrameId target, const std::vector<MapPointId>& points);  // write lock held
+  void localBundleAdjustment(KeyFrameId kf);
+  void cullKeyFrames(KeyFrameId kf);
+  void run();
+
+  Map* map_;
+  PlaceIndex* index_;
+  KeypointIndex* keypoints_;
+  PinholeCamera camera_;
+  Intrinsics K_;
+  SlamConfig config_;
+  mutable std::mutex queue_mutex_;
+  std::condition_variable queue_cv_;
+  std::deque<KeyFrameId> queue_;
+  std::vector<MapPointId> recent_points_;
+  std::vector<double> ba_ms_;
+  std::function<void(KeyFrameId)> mapped_callback_;              // guarded by queue_mutex_
+  std::function<void(KeyFrameId, KeyFrameId)> culled_callback_;  // guarded by queue_mutex_
+  std::atomic<bool> busy_{false}, stop_{false};
+  std::thread thread_;
+};
+
+}  // namespace ecar

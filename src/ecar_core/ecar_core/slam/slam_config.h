@@ -1,0 +1,60 @@
+// Options of the server's monocular SLAM (Tracker, LocalMapper, SlamSystem),
+// one struct with in-class defaults; ecar_server fills it from rosparam.
+#pragma once
+
+#include "ecar_core/slam/features.h"
+#include "ecar_core/slam/optimizer.h"
+#include "ecar_core/slam/place_recognition.h"
+#include "ecar_core/slam/pnp.h"
+#include "ecar_core/slam/two_view.h"
+
+namespace ecar {
+
+struct SlamConfig {
+  OrbConfig orb;
+  TwoViewConfig two_view;
+  PnpConfig pnp;
+  PoseOptimizerConfig pose;
+  BaConfig ba;
+  PlaceIndexConfig place;
+  KeypointIndexConfig keypoints;
+  int init_min_matches = 100;  ///< correspondences needed to try two-view
+  double init_window = 100.0;  ///< px search window between the two views
+  int init_candidates = 10;    ///< recent views kept as first-view candidates
+  int init_attempts = 5;       ///< two-view reconstructions tried per image
+  /// A candidate view is skipped when 90% of the keypoints moved less (px).
+  double init_min_displacement_px = 3.0;
+  int min_inliers = 30;  ///< tracking OK needs this many inliers
+  /// Below this fraction of the last image's inliers, the motion-model result
+  /// is checked against tracking from the reference keyframe.
+  double weak_tracking_ratio = 0.5;
+  double projection_radius = 15.0;   ///< px (x pyramid scale) for motion-model search
+  double local_map_radius = 4.0;     ///< px (x scale) for the local-map search
+  int local_keyframes = 25;          ///< keyframes in the tracking local map
+  int ba_keyframes = 10;             ///< free keyframes in local BA
+  double keyframe_ratio = 0.75;      ///< new keyframe when tracked < ratio x reference's
+  int keyframe_max_gap = 4;          ///< frames (uploads) after which a keyframe is due
+  int covisible_triangulation = 10;  ///< neighbours searched for new points
+  double relocalisation_ratio = 0.75;
+  int relocalisation_candidates = 5;
+  /// Relocalisation / joining by keypoint matches (when the whole-image
+  /// candidates fail, e.g. a view from the opposite direction): ratio test
+  /// between the two nearest distinct map points, and the neighbours of a
+  /// candidate keyframe whose points are matched with it.
+  double keypoint_ratio = 0.8;
+  int keypoint_group = 15;
+  /// With gravity in a gravity-aligned map: inliers a 2-point (yaw and
+  /// translation) RANSAC over all keypoint matches at once needs before the
+  /// pose is verified by projection (a view from the opposite direction has
+  /// only about 10 correct matches among 60-90 when it first joins).
+  int keypoint_gravity_min_inliers = 10;
+  /// A relocalised pose must agree with the upload's gravity within this
+  /// (degrees) where the map is gravity-aligned.
+  double gravity_tolerance_deg = 5.0;
+  bool synchronous_mapping = true;  ///< map each keyframe inside track()
+  /// Epoch of the first map (Map::epoch); a server makes it differ between
+  /// its starts so that devices notice a restarted server. >= 1.
+  uint32_t first_epoch = 1;
+};
+
+}  // namespace ecar

@@ -1,0 +1,102 @@
+#include "ecar_core/slam/slam_system.h"
+
+#include "ecar_core/common/error.h"
+#include "ecar_core/io/map_file.h"
+#include "ecar_core/io/slam_map_codec.h"
+#include "ecar_core/io/structure_codec.h"
+
+namespace ecar {
+
+SlamSystem::SlamSystem(const PinholeCamera& camera, const SlamConfig& config)
+    : camera_(camera),
+      config_(config),
+      map_(ScaleInfo::fromConfig(config.orb)),
+      index_(config.place),
+      keypoint_index_(config.keypoints),
+      mapper_(&map_, &index_, camera, config, &keypoint_index_) {
+  if (config_.first_epoch < 1) throw Error("SlamConfig: first_epoch must be >= 1");
+  map_.setCounters(map_.nextKeyFrameId(), map_.nextPointId(), config_.first_epoch);
+  if (!config_.synchronous_mapping) mapper_.startThread();
+}
+
+SlamSystem::~SlamSystem() { mapper_.stopThread(); }
+
+Tracker& SlamSystem::tracker(DeviceId device) {
+  std::lock_guard<std::mutex> lock(trackers_mutex_);
+  auto& t = trackers_[device];
+  if (!t) {
+    t = std::make_unique<Tracker>(device, &map_, &index_, &mapper_, camera_, config_,
+                                  &keypoint_index_);
+  }
+  return *t;
+}
+
+void SlamSystem::removeDevice(DeviceId device) {
+  std::lock_guard<std::mutex> lock(trackers_mutex_);
+  trackers_.erase(device);
+}
+
+TrackResult SlamSystem::track(DeviceId device, const cv::Mat& image, double timestamp,
+                              uint32_t frame_index, const std::optional<Eigen::Vector3d>& gravity_c,
+                              const std::optional<SE3>& T_o_c) {
+  std::shared_lock<std::shared_mutex> session(session_mutex_);
+  TrackResult result = tracker(device).track(image, timestamp, frame_index, gravity_c, T_o_c);
+  auto lock = map_.readLock();
+  result.map_epoch = map_.epoch();  // installMap() cannot run while `session` is held
+  return result;
+}
+
+void SlamSystem::saveMap(const std::string& path) const {
+  MapFileWriter writer;
+  writeMapSection(&writer);
+  writer.write(path);
+}
+
+void SlamSystem::loadMap(const std::string& path) {
+  installMap(readMapSection(MapFileReader::open(path)));
+}
+
+void SlamSystem::writeMapSection(MapFileWriter* writer) const {
+  std::vector<uint8_t> bytes;
+  {
+    auto lock = map_.readLock();
+    bytes = encodeSlamMap(map_, camera_);
+  }
+  writer->addSection(kSlamSection, std::move(bytes));
+}
+
+std::unique_ptr<Map> SlamSystem::readMapSection(const MapFileReader& reader) const {
+  return decodeSlamMap(reader.reader(kSlamSection), camera_, map_.scale());
+}
+
+void SlamSystem::installMap(std::unique_ptr<Map> map) {
+  if (!map) throw Error("SlamSystem::installMap: no map");
+  std::unique_lock<std::shared_mutex> session(session_mutex_);  // no track() runs
+  mapper_.reset();
+  std::vector<std::pair<KeyFrameId, cv::Mat>> descriptors;
+  std::vector<std::vector<int>> point_rows;
+  {
+    auto lock = map_.writeLock();
+    map_.replaceWith(std::move(*map));
+    for (const KeyFrameId id : map_.keyframeIds()) {
+      const KeyFrame* kf = map_.keyframe(id);
+      if (kf->features.descriptors.empty()) continue;
+      std::vector<int> rows;
+      for (size_t i = 0; i < kf->points.size(); ++i) {
+        if (map_.point(kf->points[i])) rows.push_back(static_cast<int>(i));
+      }
+      descriptors.emplace_back(id, kf->features.descriptors);
+      point_rows.push_back(std::move(rows));
+    }
+  }
+  index_.clear();
+  keypoint_index_.clear();
+  for (size_t k = 0; k < descriptors.size(); ++k) {
+    index_.add(descriptors[k].first, descriptors[k].second);
+    keypoint_index_.add(descriptors[k].first, descriptors[k].second, point_rows[k]);
+  }
+  std::lock_guard<std::mutex> lock(trackers_mutex_);
+  for (auto& kv : trackers_) kv.second->reset();
+}
+
+}  // namespace ecar

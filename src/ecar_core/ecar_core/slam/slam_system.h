@@ -1,0 +1,97 @@
+// Monocular ORB SLAM for the edge server: one shared Map, a Tracker per
+// device, and a LocalMapper that takes keyframes from every device.
+//
+//   SlamSystem slam(camera, config);
+//   TrackResult r = slam.track(device, image, timestamp, frame_index, gravity, odometry);
+//
+// Trackers of different devices may run concurrently (each on its own thread);
+// the mapper runs on its own thread (startMapping()) or synchronously after
+// each keyframe (the default, deterministic for tests and the offline runner's
+// --sync mode).
+#pragma once
+
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <shared_mutex>
+#include <string>
+#include <unordered_map>
+
+#include <opencv2/core.hpp>
+
+#include "ecar_core/common/camera.h"
+#include "ecar_core/common/types.h"
+#include "ecar_core/slam/local_mapper.h"
+#include "ecar_core/slam/map.h"
+#include "ecar_core/slam/place_recognition.h"
+#include "ecar_core/slam/slam_config.h"
+#include "ecar_core/slam/tracker.h"
+
+namespace ecar {
+
+class MapFileReader;
+class MapFileWriter;
+
+class SlamSystem {
+ public:
+  SlamSystem(const PinholeCamera& camera, const SlamConfig& config = SlamConfig());
+  ~SlamSystem();
+  /// Tracker of a device, created on first use. Different devices may be
+  /// tracked from different threads at once; one device from one thread.
+  /// Track through SlamSystem::track(), which installMap() waits for.
+  Tracker& tracker(DeviceId device);
+  /// Forgets a device's tracker (its motion model, lost state, initialisation
+  /// views); its keyframes stay in the map. The caller makes sure no thread is
+  /// inside track() for that device. The next track() starts a new tracker.
+  void removeDevice(DeviceId device);
+  /// Tracks one image of a device (see Tracker::track). Runs alongside other
+  /// devices' track() calls; installMap() waits for it and blocks it.
+  TrackResult track(DeviceId device, const cv::Mat& image, double timestamp, uint32_t frame_index,
+                    const std::optional<Eigen::Vector3d>& gravity_c = std::nullopt,
+                    const std::optional<SE3>& T_o_c = std::nullopt);
+
+  // ---- saving and loading the map (io/map_file.h, io/slam_map_codec.h). Thread-safe with track().
+  /// Writes the map to a file with one section, "slam" (atomically: a
+  /// temporary file renamed). A snapshot under the map's read lock: trackers
+  /// and the mapper go on. Throws ecar::Error naming the file on I/O errors.
+  void saveMap(const std::string& path) const;
+  /// Replaces the map by the one saved in `path` (readMapSection, then
+  /// installMap). Throws ecar::Error naming the file, section and field when
+  /// the file is missing, foreign, of another version, truncated, corrupted
+  /// (CRC) or inconsistent, or made with another camera; the current map is
+  /// then untouched.
+  void loadMap(const std::string& path);
+  /// Adds the "slam" section (keyframes, points, id counters, epoch, camera)
+  /// to a map file being assembled, so other components can add theirs.
+  void writeMapSection(MapFileWriter* writer) const;
+  /// Decodes the "slam" section of a map file into a new map, with everything
+  /// derived rebuilt (undistorted keypoints, feature grids, covisibility) and
+  /// its consistency checked. Touches nothing of this system; throws
+  /// ecar::Error as loadMap() does.
+  std::unique_ptr<Map> readMapSection(const MapFileReader& reader) const;
+  /// Swaps a decoded map in: waits for running track() calls and blocks new
+  /// ones, drops the mapper's queue, takes the map's contents, moves the epoch
+  /// past both maps', rebuilds the place and keypoint indexes, and resets
+  /// every tracker so that it relocalises against the new map. Not from the
+  /// mapped callback (it may run inside track()).
+  void installMap(std::unique_ptr<Map> map);
+
+  Map& map() { return map_; }
+  const Map& map() const { return map_; }
+  LocalMapper& mapper() { return mapper_; }
+  const PinholeCamera& camera() const { return camera_; }
+
+ private:
+  PinholeCamera camera_;
+  SlamConfig config_;
+  Map map_;
+  PlaceIndex index_;
+  KeypointIndex keypoint_index_;
+  LocalMapper mapper_;
+  /// Shared by track() calls, exclusive while a map is installed.
+  std::shared_mutex session_mutex_;
+  std::mutex trackers_mutex_;
+  std::unordered_map<DeviceId, std::unique_ptr<Tracker>> trackers_;
+};
+
+}  // namespace ecar

@@ -1,0 +1,120 @@
+// The server's planes (PlaneMap): every keyframe's plane observations merged
+// into the planes they see again, refined, with keyframe-plane links.
+//
+//   PlaneMap planes(config);
+//   PlaneMapUpdate u = planes.integrate(input, segmenter.segment(input));
+//   std::vector<Plane> all = planes.planes();  // copies, for a tracker or the grid
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <shared_mutex>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "ecar_core/common/types.h"
+#include "ecar_core/structure/plane.h"
+#include "ecar_core/structure/plane_segmenter.h"
+
+namespace ecar {
+
+/// What PlaneMap::integrate changed.
+struct PlaneMapUpdate {
+  std::vector<PlaneId> created;          ///< new planes
+  std::vector<PlaneId> updated;          ///< re-estimated planes (version incremented)
+  std::vector<PlaneId> removed;          ///< planes merged into another one (gone)
+  std::vector<PlaneId> keyframe_planes;  ///< the keyframe's planes after the update
+};
+
+/// Everything stored about one plane (for saving and loading the map).
+struct PlaneRecord {
+  Plane plane;
+  std::vector<PlanePoint> points;  ///< inliers with their last known positions
+  std::vector<KeyFrameId> keyframes;
+};
+
+/// The server's planes: merging, refinement, keyframe-plane links.
+///
+/// Thread-safety: every public method is safe to call concurrently. The map has
+/// its own std::shared_mutex (independent of ecar::Map's): readers take it shared
+/// and return copies; integrate(), eraseKeyFrame(), load() and clear() take it
+/// exclusively. integrate() does its fitting (a few ms for thousands of points)
+/// under the exclusive lock; segmentation (the expensive part) runs before, unlocked.
+class PlaneMap {
+ public:
+  /// Throws ecar::Error when the config is invalid.
+  explicit PlaneMap(const PlaneConfig& config);
+
+  /// Merges the keyframe's observations: each one joins the existing plane it
+  /// matches (normals within merge_angle_deg, median distance of its inliers to
+  /// the plane within merge_distance, extents within merge_gap), or becomes a new
+  /// plane. A joined plane takes the new inliers (a point belongs to one plane:
+  /// points already held by another plane stay there), refreshes the positions of
+  /// its points present in input.points, is refitted by least squares, drops
+  /// points farther than keep_factor * distance_threshold, gets a new hull, label
+  /// and version. Two planes that now match are merged (the lower id survives).
+  /// Links the keyframe to the planes its observations joined.
+  PlaneMapUpdate integrate(const PlaneKeyFrameInput& input,
+                           const std::vector<PlaneObservation>& observations);
+
+  /// Copies of every plane, by increasing id.
+  std::vector<Plane> planes() const;
+  /// Copies of the given planes that exist, in the given order.
+  std::vector<Plane> planes(const std::vector<PlaneId>& ids) const;
+  std::optional<Plane> plane(PlaneId id) const;
+  size_t size() const;
+  /// Increments on every change; a reader can skip copying when it is unchanged.
+  uint64_t revision() const;
+
+  /// The keyframe's planes, by increasing id (empty when unknown).
+  std::vector<PlaneId> planesOfKeyFrame(KeyFrameId keyframe) const;
+  /// The keyframes linked to a plane, by increasing id.
+  std::vector<KeyFrameId> keyframesOfPlane(PlaneId id) const;
+  /// A plane's inlier map points, by increasing id.
+  std::vector<MapPointId> pointsOfPlane(PlaneId id) const;
+  /// The plane holding a map point, if any.
+  std::optional<PlaneId> planeOfPoint(MapPointId point) const;
+
+  /// Removes a keyframe's links (planes stay).
+  void eraseKeyFrame(KeyFrameId keyframe);
+
+  /// Every plane with its points and links, by increasing id.
+  std::vector<PlaneRecord> save() const;
+  /// The id the next new plane gets (above every id ever given out, also of
+  /// planes merged away since).
+  uint32_t nextId() const;
+  /// Replaces the contents by saved records; new ids continue at `next_id` or
+  /// after the largest record id, whichever is higher. Throws ecar::Error on an
+  /// invalid id, a duplicate id, a non-unit normal or a point held by two
+  /// planes; then nothing is changed.
+  void load(const std::vector<PlaneRecord>& records, uint32_t next_id = 1);
+  void clear();
+
+ private:
+  struct Entry {
+    Plane plane;
+    std::unordered_map<MapPointId, Eigen::Vector3d> points;
+    std::unordered_set<KeyFrameId> keyframes;
+  };
+
+  // All below: hold mutex_ exclusively.
+  bool matches(const Entry& entry, const std::vector<Eigen::Vector3d>& points_w,
+               const std::vector<Eigen::Vector3d>& hull, const Eigen::Vector3d& normal,
+               double* median_distance) const;
+  void reestimate(Entry* entry, const Eigen::Vector3d& camera_center_w,
+                  const Eigen::Vector3d& up_w);
+  void absorb(Entry* into, Entry* from);
+
+  PlaneConfig config_;
+  mutable std::shared_mutex mutex_;
+  std::unordered_map<PlaneId, Entry> planes_;                             // GUARDED_BY(mutex_)
+  std::unordered_map<MapPointId, PlaneId> point_owner_;                   // GUARDED_BY(mutex_)
+  std::unordered_map<KeyFrameId, std::vector<PlaneId>> keyframe_planes_;  // GUARDED_BY(mutex_)
+  uint32_t next_id_ = 1;                                                  // GUARDED_BY(mutex_)
+  uint64_t revision_ = 0;                                                 // GUARDED_BY(mutex_)
+};
+
+}  // namespace ecar

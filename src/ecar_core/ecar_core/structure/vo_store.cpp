@@ -1,0 +1,535 @@
+#include "ecar_core/structure/vo_store.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <utility>
+
+#include "ecar_core/common/error.h"
+#include "ecar_core/structure/grid_cells.h"
+#include "ecar_core/structure/vo_database.h"
+
+namespace ecar {
+
+namespace {
+
+bool finiteVector(const Eigen::Vector3d& v) { return v.allFinite(); }
+
+std::string str(const Eigen::Vector3d& v) {
+  std::ostringstream os;
+  os << "(" << v.x() << ", " << v.y() << ", " << v.z() << ")";
+  return os.str();
+}
+
+std::string str(double value) {
+  std::ostringstream os;
+  os << value;
+  return os.str();
+}
+
+}  // namespace
+
+const char* toString(VoAttachMode mode) {
+  return mode == VoAttachMode::kKeyFrame ? "keyframe" : "grid";
+}
+
+VoAttachMode parseVoAttachMode(const std::string& text) {
+  if (text == "grid") return VoAttachMode::kGrid;
+  if (text == "keyframe") return VoAttachMode::kKeyFrame;
+  throw Error("vo_attach: '" + text + "' is neither 'grid' nor 'keyframe'");
+}
+
+void VoStoreConfig::validate() const {
+  auto fail = [](const std::string& key, const std::string& why) { throw Error(key + ": " + why); };
+  auto positive = [](double v) { return std::isfinite(v) && v > 0.0; };
+  if (database_path.empty()) fail("database_path", "must not be empty");
+  if (synchronous != "full" && synchronous != "normal") {
+    fail("synchronous", "'" + synchronous + "' is neither 'full' nor 'normal'");
+  }
+  if (!positive(cell_size) || cell_size > 10.0) fail("cell_size", "must be in (0, 10] m");
+  if (!std::isfinite(attach_margin) || attach_margin < 0.0 || attach_margin >= cell_size / 2.0) {
+    fail("attach_margin", "must be in [0, cell_size / 2) m");
+  }
+  if (attach_mode != VoAttachMode::kGrid && attach_mode != VoAttachMode::kKeyFrame) {
+    fail("attach_mode", "must be grid or keyframe");
+  }
+  if (!map_min.allFinite() || !map_max.allFinite() || (map_min.array() >= map_max.array()).any()) {
+    fail("map_min", "map bounds must be finite with map_min < map_max on every axis");
+  }
+  // Cell coordinates must stay well inside int32 and the CellKey hash's 21-bit fields.
+  const double extent = std::max(map_min.cwiseAbs().maxCoeff(), map_max.cwiseAbs().maxCoeff());
+  if (extent / cell_size >= (1 << 20)) {
+    fail("map_max", "map bounds span more than 2^20 cells of cell_size from the origin");
+  }
+  if (!positive(min_line_length)) fail("min_line_length", "must be > 0 m");
+  if (!positive(max_line_length) || max_line_length < min_line_length) {
+    fail("max_line_length", "must be >= min_line_length");
+  }
+  if (!positive(max_width)) fail("max_width", "must be > 0 m");
+  if (max_owner_length < 1) fail("max_owner_length", "must be >= 1");
+  if (max_objects < 1 || max_objects >= std::numeric_limits<uint32_t>::max()) {
+    fail("max_objects", "must be in [1, 2^32 - 1)");
+  }
+  if (!std::isfinite(max_database_mb) || max_database_mb < 0.0) {
+    fail("max_database_mb", "must be >= 0 (0 = unlimited)");
+  }
+}
+
+// ---------------------------------------------------------------- store
+
+VoStore::VoStore(const VoStoreConfig& config)
+    : config_((config.validate(), config)), map_min_(config.map_min), map_max_(config.map_max) {
+  db_ = std::make_unique<VoDatabase>(config_);
+  uint32_t max_id = 0;
+  const uint32_t stored_next = db_->load([&](VoRecord record) {
+    Entry entry;
+    static_cast<VoRecord&>(entry) = std::move(record);
+    max_id = std::max(max_id, entry.vo.id.value);
+    if (!entry.vo.deleted) {
+      entry.cells = attachmentCells(entry.vo, config_.cell_size, config_.attach_margin);
+      attach(entry);
+      ++num_live_;
+    }
+    const ObjectId id = entry.vo.id;
+    objects_.emplace(id, std::move(entry));
+  });
+  next_id_ = std::max(stored_next, max_id + 1);
+}
+
+VoStore::~VoStore() = default;
+
+VoReject VoStore::check(VirtualObject* vo, std::string* reason) const {
+  const uint8_t kind = static_cast<uint8_t>(vo->kind);
+  if (kind > 1) {
+    *reason = "kind " + std::to_string(kind) + " is neither LINE (0) nor ANCHOR (1)";
+    return VoReject::kBadAttribute;
+  }
+  const bool line = vo->kind == VoKind::kLine;
+  const std::pair<const char*, const Eigen::Vector3d*> vectors[] = {{"position", &vo->position},
+                                                                    {"start", &vo->start},
+                                                                    {"end", &vo->end},
+                                                                    {"normal", &vo->normal}};
+  for (const auto& [name, v] : vectors) {
+    if (!finiteVector(*v)) {
+      *reason = std::string(name) + " is not finite " + str(*v);
+      return VoReject::kNotFinite;
+    }
+  }
+  if (!std::isfinite(vo->width)) {
+    *reason = "width is not finite (" + str(vo->width) + ")";
+    return VoReject::kNotFinite;
+  }
+  if (line ? !(vo->width > 0.0f && vo->width <= config_.max_width)
+           : !(vo->width >= 0.0f && vo->width <= config_.max_width)) {
+    *reason = "width " + str(vo->width) + " m is not in " + (line ? "(0, " : "[0, ") +
+              str(config_.max_width) + "] m";
+    return VoReject::kBadAttribute;
+  }
+  if (vo->owner.size() > config_.max_owner_length) {
+    *reason = "owner is longer than " + std::to_string(config_.max_owner_length) + " characters";
+    return VoReject::kBadAttribute;
+  }
+  const double normal_norm = vo->normal.norm();
+  if (normal_norm < 1e-9) {
+    *reason = "normal is zero";
+    return VoReject::kBadGeometry;
+  }
+  vo->normal /= normal_norm;
+  if (line) {
+    const double length = (vo->end - vo->start).norm();
+    if (length < config_.min_line_length) {
+      *reason = "line length " + str(length) + " m is below min_line_length " +
+                str(config_.min_line_length) + " m";
+      return VoReject::kBadGeometry;
+    }
+    if (length > config_.max_line_length) {
+      *reason = "line length " + str(length) + " m exceeds max_line_length " +
+                str(config_.max_line_length) + " m";
+      return VoReject::kBadGeometry;
+    }
+    vo->position = 0.5 * (vo->start + vo->end);
+  } else {
+    vo->start = vo->end = vo->position;
+  }
+  // A line lies inside the (convex) bounds when its end points do.
+  std::vector<std::pair<const char*, const Eigen::Vector3d*>> points;
+  if (line) {
+    points = {{"start", &vo->start}, {"end", &vo->end}};
+  } else {
+    points = {{"position", &vo->position}};
+  }
+  for (const auto& [name, p] : points) {
+    if ((p->array() < map_min_.array()).any() || (p->array() > map_max_.array()).any()) {
+      *reason = std::string(name) + " " + str(*p) + " is out of the map bounds " + str(map_min_) +
+                " to " + str(map_max_);
+      return VoReject::kOutOfMap;
+    }
+  }
+  return VoReject::kNone;
+}
+
+VoReject VoStore::checkExisting(ObjectId id, uint32_t base_version, bool unconditional_ok,
+                                const std::string& editor, std::string* reason,
+                                const Entry** entry) const {
+  const auto it = objects_.find(id);
+  if (it == objects_.end()) {
+    *reason = "unknown object id " + std::to_string(id.value);
+    return VoReject::kUnknownId;
+  }
+  *entry = &it->second;
+  const VirtualObject& vo = it->second.vo;
+  if (vo.deleted) {
+    *reason = "object " + std::to_string(id.value) + " was deleted (version " +
+              std::to_string(vo.version) + ")";
+    return VoReject::kDeleted;
+  }
+  if ((base_version == 0 && unconditional_ok) || base_version == vo.version) {
+    return VoReject::kNone;
+  }
+  if (base_version > vo.version) {
+    *reason = "base_version " + std::to_string(base_version) +
+              " is newer than the store's version " + std::to_string(vo.version) + " of object " +
+              std::to_string(id.value);
+    return VoReject::kStaleVersion;
+  }
+  if (base_version > 0 && config_.accept_own_stale && !editor.empty() &&
+      editor == it->second.last_editor && base_version >= it->second.editor_since) {
+    return VoReject::kNone;
+  }
+  *reason = "stale base_version " + std::to_string(base_version) + ": the store has version " +
+            std::to_string(vo.version) + " of object " + std::to_string(id.value);
+  return VoReject::kStaleVersion;
+}
+
+void VoStore::attach(const Entry& entry) {
+  for (const CellKey& c : entry.cells) cell_index_[c].push_back(entry.vo.id);
+  if (entry.keyframe.valid()) keyframe_index_[entry.keyframe].push_back(entry.vo.id);
+}
+
+void VoStore::detach(const Entry& entry) {
+  auto drop = [&](auto& index, const auto& key) {
+    const auto it = index.find(key);
+    if (it == index.end()) return;
+    auto& ids = it->second;
+    ids.erase(std::remove(ids.begin(), ids.end(), entry.vo.id), ids.end());
+    if (ids.empty()) index.erase(it);
+  };
+  for (const CellKey& c : entry.cells) drop(cell_index_, c);
+  if (entry.keyframe.valid()) drop(keyframe_index_, entry.keyframe);
+}
+
+namespace {
+VoOutcome reject(VoReject code, std::string reason, ObjectId id, uint32_t version) {
+  VoOutcome out;
+  out.code = code;
+  out.reason = std::move(reason);
+  out.id = id;
+  out.version = version;
+  return out;
+}
+
+VoOutcome accept(ObjectId id, uint32_t version) {
+  VoOutcome out;
+  out.accepted = true;
+  out.id = id;
+  out.version = version;
+  return out;
+}
+}  // namespace
+
+VoOutcome VoStore::registerObject(const VirtualObject& request, KeyFrameId keyframe) {
+  std::lock_guard<std::mutex> write(write_mutex_);
+  Entry entry;
+  entry.vo = request;
+  std::string reason;
+  VoReject code = check(&entry.vo, &reason);
+  if (code != VoReject::kNone) return reject(code, reason, ObjectId(), 0);
+  if (config_.attach_mode == VoAttachMode::kKeyFrame && !keyframe.valid()) {
+    return reject(VoReject::kNoKeyFrame, "keyframe attachment needs the nearest keyframe",
+                  ObjectId(), 0);
+  }
+  if (objects_.size() >= config_.max_objects || next_id_ == std::numeric_limits<uint32_t>::max()) {
+    return reject(VoReject::kFull,
+                  "the store is full (" + std::to_string(objects_.size()) + " objects)", ObjectId(),
+                  0);
+  }
+  entry.vo.id = ObjectId(next_id_);
+  entry.vo.version = 1;
+  entry.vo.deleted = false;
+  entry.keyframe = keyframe;
+  entry.last_editor = entry.vo.owner;
+  entry.editor_since = 0;
+  entry.cells = attachmentCells(entry.vo, config_.cell_size, config_.attach_margin);
+  std::string error;
+  if (!db_->write(entry, next_id_ + 1, &error)) {
+    return reject(VoReject::kStorage, "database write failed: " + error, ObjectId(), 0);
+  }
+  std::unique_lock<std::shared_mutex> state(state_mutex_);
+  ++next_id_;
+  attach(entry);
+  ++num_live_;
+  const ObjectId id = entry.vo.id;
+  objects_.emplace(id, std::move(entry));
+  return accept(id, 1);
+}
+
+VoOutcome VoStore::manipulate(ObjectId id, uint32_t base_version, const VirtualObject& new_state,
+                              const std::string& editor) {
+  std::lock_guard<std::mutex> write(write_mutex_);
+  std::string reason;
+  const Entry* old = nullptr;
+  VoReject code = checkExisting(id, base_version, false, editor, &reason, &old);
+  const uint32_t current = old ? old->vo.version : 0;
+  if (code != VoReject::kNone) return reject(code, reason, id, current);
+  Entry entry = *old;
+  entry.vo = new_state;
+  code = check(&entry.vo, &reason);
+  if (code != VoReject::kNone) return reject(code, reason, id, current);
+  entry.vo.id = id;
+  entry.vo.owner = old->vo.owner;
+  entry.vo.version = current + 1;
+  entry.vo.deleted = false;
+  if (editor.empty() || editor != old->last_editor) entry.editor_since = current;
+  entry.last_editor = editor;
+  entry.cells = attachmentCells(entry.vo, config_.cell_size, config_.attach_margin);
+  std::string error;
+  if (!db_->write(entry, std::nullopt, &error)) {
+    return reject(VoReject::kStorage, "database write failed: " + error, id, current);
+  }
+  std::unique_lock<std::shared_mutex> state(state_mutex_);
+  Entry& stored = objects_.at(id);
+  detach(stored);
+  stored = std::move(entry);
+  attach(stored);
+  return accept(id, current + 1);
+}
+
+VoOutcome VoStore::remove(ObjectId id, uint32_t base_version, const std::string& editor) {
+  std::lock_guard<std::mutex> write(write_mutex_);
+  std::string reason;
+  const Entry* old = nullptr;
+  const VoReject code = checkExisting(id, base_version, true, editor, &reason, &old);
+  const uint32_t current = old ? old->vo.version : 0;
+  if (code != VoReject::kNone) return reject(code, reason, id, current);
+  Entry entry = *old;
+  entry.vo.version = current + 1;
+  entry.vo.deleted = true;
+  if (editor.empty() || editor != old->last_editor) entry.editor_since = current;
+  entry.last_editor = editor;
+  entry.cells.clear();
+  std::string error;
+  if (!db_->write(entry, std::nullopt, &error)) {
+    return reject(VoReject::kStorage, "database write failed: " + error, id, current);
+  }
+  std::unique_lock<std::shared_mutex> state(state_mutex_);
+  Entry& stored = objects_.at(id);
+  detach(stored);
+  stored = std::move(entry);
+  --num_live_;
+  return accept(id, current + 1);
+}
+
+std::vector<VirtualObject> VoStore::objectsInCells(const std::vector<CellKey>& cells) const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  std::vector<ObjectId> ids;
+  for (const CellKey& c : cells) {
+    const auto it = cell_index_.find(c);
+    if (it != cell_index_.end()) ids.insert(ids.end(), it->second.begin(), it->second.end());
+  }
+  std::sort(ids.begin(), ids.end());
+  ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+  std::vector<VirtualObject> out;
+  out.reserve(ids.size());
+  for (ObjectId id : ids) out.push_back(objects_.at(id).vo);
+  return out;
+}
+
+std::vector<VirtualObject> VoStore::objectsOfKeyFrames(
+    const std::vector<KeyFrameId>& keyframes) const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  std::vector<ObjectId> ids;
+  for (KeyFrameId k : keyframes) {
+    const auto it = keyframe_index_.find(k);
+    if (it != keyframe_index_.end()) ids.insert(ids.end(), it->second.begin(), it->second.end());
+  }
+  std::sort(ids.begin(), ids.end());
+  ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+  std::vector<VirtualObject> out;
+  out.reserve(ids.size());
+  for (ObjectId id : ids) out.push_back(objects_.at(id).vo);
+  return out;
+}
+
+std::optional<VirtualObject> VoStore::get(ObjectId id) const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  const auto it = objects_.find(id);
+  if (it == objects_.end()) return std::nullopt;
+  return it->second.vo;
+}
+
+std::vector<VirtualObject> VoStore::objects(const std::vector<ObjectId>& ids) const {
+  std::vector<ObjectId> sorted = ids;
+  std::sort(sorted.begin(), sorted.end());
+  sorted.erase(std::unique(sorted.begin(), sorted.end()), sorted.end());
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  std::vector<VirtualObject> out;
+  out.reserve(sorted.size());
+  for (ObjectId id : sorted) {
+    const auto it = objects_.find(id);
+    if (it != objects_.end()) out.push_back(it->second.vo);
+  }
+  return out;
+}
+
+std::vector<VirtualObject> VoStore::allObjects() const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  std::vector<VirtualObject> out;
+  out.reserve(objects_.size());
+  for (const auto& [id, entry] : objects_) out.push_back(entry.vo);
+  std::sort(out.begin(), out.end(),
+            [](const VirtualObject& a, const VirtualObject& b) { return a.id < b.id; });
+  return out;
+}
+
+std::vector<CellKey> VoStore::cellsOf(ObjectId id) const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  const auto it = objects_.find(id);
+  return it == objects_.end() ? std::vector<CellKey>() : it->second.cells;
+}
+
+KeyFrameId VoStore::keyFrameOf(ObjectId id) const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  const auto it = objects_.find(id);
+  return it == objects_.end() ? KeyFrameId() : it->second.keyframe;
+}
+
+size_t VoStore::numObjects() const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  return objects_.size();
+}
+
+size_t VoStore::numLive() const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  return num_live_;
+}
+
+ObjectId VoStore::nextId() const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  return ObjectId(next_id_);
+}
+
+void VoStore::setMapBounds(const Eigen::Vector3d& map_min, const Eigen::Vector3d& map_max) {
+  VoStoreConfig check = config_;
+  check.map_min = map_min;
+  check.map_max = map_max;
+  check.validate();
+  std::lock_guard<std::mutex> write(write_mutex_);
+  std::unique_lock<std::shared_mutex> state(state_mutex_);
+  map_min_ = map_min;
+  map_max_ = map_max;
+}
+
+void checkVoSnapshot(const VoSnapshot& snapshot, const std::string& context) {
+  std::unordered_map<ObjectId, bool> seen;
+  for (const VoRecord& r : snapshot.objects) {
+    const VirtualObject& vo = r.vo;
+    const std::string what = context + ": object " + std::to_string(vo.id.value);
+    if (!vo.id.valid()) throw Error(context + ": an object has the invalid id 0");
+    if (!seen.emplace(vo.id, true).second) throw Error(what + " appears twice");
+    if (!(vo.id < snapshot.next_id)) {
+      throw Error(what + ": id not below the id counter " + std::to_string(snapshot.next_id.value));
+    }
+    if (vo.kind != VoKind::kLine && vo.kind != VoKind::kAnchor)
+      throw Error(what + ": unknown kind");
+    if (!finiteVector(vo.position) || !finiteVector(vo.start) || !finiteVector(vo.end) ||
+        !finiteVector(vo.normal) || !std::isfinite(vo.width)) {
+      throw Error(what + ": a coordinate, the normal or the width is not finite");
+    }
+    if (vo.version < 1) throw Error(what + ": version 0");
+    if (r.editor_since > vo.version) throw Error(what + ": editor_since is after its version");
+  }
+}
+
+VoSnapshot VoStore::snapshot() const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  VoSnapshot out;
+  out.next_id = ObjectId(next_id_);
+  out.objects.reserve(objects_.size());
+  for (const auto& [id, e] : objects_) {
+    out.objects.push_back(e);
+  }
+  std::sort(out.objects.begin(), out.objects.end(),
+            [](const VoRecord& a, const VoRecord& b) { return a.vo.id < b.vo.id; });
+  return out;
+}
+
+void VoStore::replaceAll(const VoSnapshot& snapshot) {
+  checkVoSnapshot(snapshot, config_.database_path + ": replacing the VOs");
+  std::unordered_map<ObjectId, Entry> objects;
+  std::vector<const VoRecord*> rows;
+  size_t live = 0;
+  for (const VoRecord& r : snapshot.objects) {
+    Entry e;
+    static_cast<VoRecord&>(e) = r;
+    if (!e.vo.deleted) {
+      e.cells = attachmentCells(e.vo, config_.cell_size, config_.attach_margin);
+      ++live;
+    }
+    objects.emplace(e.vo.id, std::move(e));
+  }
+  for (const VoRecord& r : snapshot.objects) rows.push_back(&objects.at(r.vo.id));
+  std::lock_guard<std::mutex> write(write_mutex_);
+  const uint32_t next_id = std::max(next_id_, snapshot.next_id.value);
+  std::string error;
+  if (!db_->replaceAll(rows, next_id, &error)) {
+    throw Error(config_.database_path + ": replacing the VOs failed: " + error);
+  }
+  std::unique_lock<std::shared_mutex> state(state_mutex_);
+  objects_ = std::move(objects);
+  cell_index_.clear();
+  keyframe_index_.clear();
+  for (const auto& kv : objects_) {
+    if (!kv.second.vo.deleted) attach(kv.second);
+  }
+  num_live_ = live;
+  next_id_ = next_id;
+}
+
+size_t VoStore::moveKeyFrame(KeyFrameId from, KeyFrameId to) {
+  if (!from.valid() || from == to) return 0;
+  std::lock_guard<std::mutex> write(write_mutex_);
+  std::vector<Entry> moved;
+  {
+    std::shared_lock<std::shared_mutex> state(state_mutex_);
+    const auto it = keyframe_index_.find(from);
+    if (it == keyframe_index_.end()) return 0;
+    for (const ObjectId id : it->second) {
+      moved.push_back(objects_.at(id));
+      moved.back().keyframe = to;
+    }
+  }
+  std::vector<const VoRecord*> rows;
+  for (const Entry& e : moved) rows.push_back(&e);
+  std::string error;
+  if (!db_->writeAll(rows, &error)) {
+    throw Error(config_.database_path + ": moving the objects of keyframe " +
+                std::to_string(from.value) + " failed: " + error);
+  }
+  std::unique_lock<std::shared_mutex> state(state_mutex_);
+  for (const Entry& e : moved) {
+    Entry& stored = objects_.at(e.vo.id);
+    detach(stored);
+    stored.keyframe = to;
+    attach(stored);
+  }
+  return moved.size();
+}
+
+void VoStore::backupTo(const std::string& path) const {
+  std::lock_guard<std::mutex> write(write_mutex_);
+  db_->backupTo(path);
+}
+
+}  // namespace ecar
+

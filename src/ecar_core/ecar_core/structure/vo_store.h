@@ -1,0 +1,166 @@
+// The server's store of virtual objects (VOs): registration, manipulation and
+// deletion with versions, attachment to grid cells (or, the baseline, to a
+// keyframe), and persistence in SQLite. No ROS: ecar_server converts
+// ecar_msgs/Interaction into these calls and VoOutcome into InteractionResult.
+//
+//   VoStoreConfig config;
+//   config.database_path = "/var/lib/ecar/vo.sqlite";
+//   VoStore store(config);                        // opens (or creates) and loads the database
+//   VoOutcome r = store.registerObject(vo, nearest_keyframe);
+//   VoOutcome m = store.manipulate(r.id, r.version, moved, "device_1");
+//   std::vector<VirtualObject> vos = store.objectsInCells(visible_cells);
+//
+// Durability: every accepted change is committed to the database (one
+// transaction, WAL journal) before its outcome is returned, so a change that
+// was acknowledged survives a kill -9 of the server. A change that cannot be
+// written is rejected and the store is left as it was.
+//
+// Thread-safety: every public method is thread-safe. Changes are serialised
+// by one writer mutex (held across the SQLite commit); the in-memory objects
+// and indices are guarded by a reader-writer lock that writers take only for
+// the short in-memory update after the commit, so readers (objectsInCells,
+// objectsOfKeyFrames, get) never wait for a disk write.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <shared_mutex>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "ecar_core/common/types.h"
+#include "ecar_core/structure/virtual_object.h"
+
+namespace ecar {
+
+class VoDatabase;
+
+/// Checks a snapshot before it replaces a store's contents: ids valid, unique
+/// and below next_id; versions >= 1; editor_since <= version; coordinates,
+/// normal and width finite; kind known. Throws ecar::Error naming the object
+/// and the field (`context` prefixes the text).
+void checkVoSnapshot(const VoSnapshot& snapshot, const std::string& context);
+
+class VoStore {
+ public:
+  /// Validates `config`, opens (or creates) config.database_path and loads
+  /// every stored object at its latest version (tombstones included) and the
+  /// id counter. Throws ecar::Error naming the file and the problem when the
+  /// file is not an SQLite database, is another program's database, is
+  /// malformed or is used by another process; such a file is not modified.
+  explicit VoStore(const VoStoreConfig& config);
+  ~VoStore();
+  VoStore(const VoStore&) = delete;
+  VoStore& operator=(const VoStore&) = delete;
+
+  /// Registers a new object (its id, version and deleted fields are ignored):
+  /// assigns the next id (never reused, also across restarts), version 1,
+  /// attaches it to its cells and to `keyframe` (required in keyframe mode, the
+  /// keyframe nearest the object; optional in grid mode) and stores it.
+  VoOutcome registerObject(const VirtualObject& request, KeyFrameId keyframe = KeyFrameId());
+
+  /// Replaces the state of object `id` by `new_state` (its id, owner, version
+  /// and deleted fields are ignored) when `base_version` is the store's version
+  /// (or, with accept_own_stale, an older one and every change since was by
+  /// `editor`). Version + 1; the object is re-attached to the cells it moved to;
+  /// its keyframe stays.
+  VoOutcome manipulate(ObjectId id, uint32_t base_version, const VirtualObject& new_state,
+                       const std::string& editor = std::string());
+
+  /// Deletes object `id`: it becomes a tombstone at version + 1 and is detached
+  /// from its cells and keyframe. `base_version` 0 = unconditional; otherwise
+  /// checked as in manipulate().
+  VoOutcome remove(ObjectId id, uint32_t base_version = 0,
+                   const std::string& editor = std::string());
+
+  /// Live objects attached to any of `cells` (grid attachment), each once, by id.
+  std::vector<VirtualObject> objectsInCells(const std::vector<CellKey>& cells) const;
+  /// Live objects attached to any of `keyframes` (keyframe attachment), each once, by id.
+  std::vector<VirtualObject> objectsOfKeyFrames(const std::vector<KeyFrameId>& keyframes) const;
+  /// Latest state of `id` (a tombstone included); nullopt when unknown.
+  std::optional<VirtualObject> get(ObjectId id) const;
+  /// Latest states of the known ones of `ids` (tombstones included), by id: what
+  /// a device holding them must be sent when they change or are deleted.
+  std::vector<VirtualObject> objects(const std::vector<ObjectId>& ids) const;
+  /// Every stored object (tombstones included), by id.
+  std::vector<VirtualObject> allObjects() const;
+  /// The cells `id` is attached to (empty when unknown or deleted).
+  std::vector<CellKey> cellsOf(ObjectId id) const;
+  /// The keyframe `id` hangs on (0 when none).
+  KeyFrameId keyFrameOf(ObjectId id) const;
+
+  size_t numObjects() const;  ///< stored objects, tombstones included
+  size_t numLive() const;     ///< objects not deleted
+  ObjectId nextId() const;    ///< the id the next registration gets
+
+  /// Re-hangs the objects attached to keyframe `from` (culled by the SLAM) on
+  /// `to` (its heir; invalid: they hang on none and reach no device in keyframe
+  /// mode). Not a change of the objects: versions stay. Written to the database
+  /// before memory changes; throws ecar::Error naming the database when the
+  /// write fails (nothing changes then). Returns how many moved.
+  size_t moveKeyFrame(KeyFrameId from, KeyFrameId to);
+
+  /// Replaces the map bounds (e.g. by the map's extent plus a margin) for the
+  /// checks of later changes. Throws ecar::Error when min > max or not finite.
+  void setMapBounds(const Eigen::Vector3d& map_min, const Eigen::Vector3d& map_max);
+
+  /// Every object with its attachment and editor, and the id counter, taken
+  /// under one lock (a consistent copy).
+  VoSnapshot snapshot() const;
+  /// Replaces every object by the snapshot's (a loaded map): checks it
+  /// (checkVoSnapshot), rewrites the database in one transaction (all rows and
+  /// the id counter) and only then swaps the objects in memory, so a failure
+  /// (throws ecar::Error naming the database and the problem) leaves both the
+  /// database and the store as they were, and a kill -9 right after the
+  /// call keeps the loaded objects. Cells are recomputed from the geometry.
+  /// Ids are never reused: the id counter becomes the larger of the
+  /// snapshot's and the store's.
+  void replaceAll(const VoSnapshot& snapshot);
+
+  /// Writes a consistent copy of the database to `path` (SQLite online
+  /// backup), e.g. to save a session. Throws ecar::Error when it fails.
+  void backupTo(const std::string& path) const;
+
+  const VoStoreConfig& config() const { return config_; }
+  VoAttachMode attachMode() const { return config_.attach_mode; }
+
+ private:
+  /// A stored record and the cells it is attached to.
+  struct Entry : VoRecord {
+    std::vector<CellKey> cells;
+  };
+
+  /// Checks a requested state and canonicalises it (LINE centre, ANCHOR end
+  /// points, unit normal). Returns kNone or the rejection with `reason` set.
+  VoReject check(VirtualObject* vo, std::string* reason) const;
+  /// The checks of a change to an existing object (known, live, base version;
+  /// base_version 0 passes when `unconditional_ok`). `entry` receives the
+  /// object when it is known.
+  VoReject checkExisting(ObjectId id, uint32_t base_version, bool unconditional_ok,
+                         const std::string& editor, std::string* reason, const Entry** entry) const;
+  /// Puts `entry` in the indices / takes it out. state_mutex_ held exclusively.
+  void attach(const Entry& entry);
+  void detach(const Entry& entry);
+
+  const VoStoreConfig config_;
+  /// Serialises changes; held across the database write. Guards db_.
+  mutable std::mutex write_mutex_;
+  std::unique_ptr<VoDatabase> db_;
+  /// Guards the members below: they are written only while holding both
+  /// write_mutex_ and state_mutex_ (exclusively), so either lock suffices to
+  /// read them (a writer reads them under write_mutex_ alone).
+  mutable std::shared_mutex state_mutex_;
+  uint32_t next_id_ = 1;
+  std::unordered_map<ObjectId, Entry> objects_;
+  std::unordered_map<CellKey, std::vector<ObjectId>> cell_index_;
+  std::unordered_map<KeyFrameId, std::vector<ObjectId>> keyframe_index_;
+  size_t num_live_ = 0;
+  Eigen::Vector3d map_min_, map_max_;
+};
+
+}  // namespace ecar

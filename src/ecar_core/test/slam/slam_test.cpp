@@ -1,0 +1,348 @@
+// The whole SLAM on short rendered sequences: initialisation, tracking,
+// mapping, several devices in one map, and bad images; and on a real one.
+#include "ecar_core/slam/slam_system.h"
+
+#include <atomic>
+#include <chrono>
+#include <filesystem>
+#include <thread>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "ecar_core/io/dataset.h"
+#include "ecar_core/sim/motion.h"
+#include "ecar_core/sim/renderer.h"
+#include "ecar_core/eval/trajectory_eval.h"
+
+namespace ecar {
+namespace {
+
+const std::string kScenes = ECAR_REPO_ROOT "/config/scenes";
+const std::string kRealData = ECAR_REPO_ROOT "/../shared/data";
+
+struct Upload {
+  cv::Mat image;
+  MotionSample motion;
+  uint32_t frame = 0;
+};
+
+// Every `every`th frame of a device, rendered and JPEG-compressed at quality 70.
+std::vector<Upload> renderUploads(const Scene& scene, const Renderer& renderer,
+                                  const std::string& device, int every, int max_uploads,
+                                  size_t first = 0) {
+  const auto motion = generateMotion(scene, scene.device(device), scene.camera.fps);
+  std::vector<Upload> out;
+  RenderOptions opt;
+  opt.noise_sigma = static_cast<float>(scene.noise_sigma);
+  RenderOutput r;
+  for (size_t i = first; i < motion.size() && static_cast<int>(out.size()) < max_uploads;
+       i += every) {
+    opt.noise_seed = static_cast<uint32_t>(i);
+    renderer.render(motion[i].T_w_c, opt, &r);
+    std::vector<uint8_t> jpeg;
+    cv::imencode(".jpg", r.image, jpeg, {cv::IMWRITE_JPEG_QUALITY, 70});
+    out.push_back({cv::imdecode(jpeg, cv::IMREAD_GRAYSCALE), motion[i], static_cast<uint32_t>(i)});
+  }
+  return out;
+}
+
+// ATE of tracked uploads after one Sim(3) (or SE(3)) alignment.
+double ate(const std::vector<Eigen::Vector3d>& est, const std::vector<Eigen::Vector3d>& gt,
+           bool scale) {
+  const Sim3 S = umeyama(est, gt, scale);
+  std::vector<double> e;
+  for (size_t i = 0; i < est.size(); ++i) e.push_back((S * est[i] - gt[i]).norm());
+  return computeStats(e).rmse;
+}
+
+TEST(SlamTest, HalfCircleIsTrackedAccurately) {
+  const Scene scene = loadScene(kScenes + "/room.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "half_circle", 4, 60);
+  SlamSystem slam(renderer.camera());
+  std::vector<Eigen::Vector3d> est, gt;
+  int tracked = 0, init = -1;
+  for (size_t i = 0; i < uploads.size(); ++i) {
+    const auto r = slam.track(DeviceId(1), uploads[i].image, uploads[i].motion.timestamp,
+                              uploads[i].frame, uploads[i].motion.gravity_c);
+    if (r.initialised) init = static_cast<int>(i);
+    if (r.state == TrackingState::kOk) {
+      ++tracked;
+      est.push_back(r.T_w_c.translation());
+      gt.push_back(uploads[i].motion.T_w_c.translation());
+      EXPECT_GT(r.tracked.size(), 50u) << "upload " << i;
+    }
+  }
+  ASSERT_GE(init, 0) << "never initialised";
+  EXPECT_LE(init, 10);  // the device stands still for 0.5 s, then speeds up
+  const int after = static_cast<int>(uploads.size()) - init;
+  EXPECT_GE(tracked, 0.95 * after) << tracked << " of " << after;
+  ASSERT_GE(est.size(), 10u);
+  EXPECT_LT(ate(est, gt, true), 0.015);
+  EXPECT_GE(slam.map().numKeyFrames(), 3u);
+}
+
+// A hand-held shake (5 cm, 4 degrees, 1 Hz) has little parallax between any
+// two views: initialisation must find the pair of recent views with the
+// largest baseline, not wait for the first view to be renewed.
+TEST(SlamTest, HandHeldShakeInitialisesFromItsBestPairOfViews) {
+  const Scene scene = loadScene(kScenes + "/room.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "shake", 4, 36);
+  SlamSystem slam(renderer.camera());
+  std::vector<Eigen::Vector3d> est, gt;
+  int init = -1;
+  for (size_t i = 0; i < uploads.size(); ++i) {
+    const auto r = slam.track(DeviceId(1), uploads[i].image, uploads[i].motion.timestamp,
+                              uploads[i].frame, uploads[i].motion.gravity_c);
+    if (r.initialised) init = static_cast<int>(i);
+    if (r.state == TrackingState::kOk) {
+      est.push_back(r.T_w_c.translation());
+      gt.push_back(uploads[i].motion.T_w_c.translation());
+    } else {
+      EXPECT_LT(init, 0) << "lost at upload " << i;
+    }
+  }
+  ASSERT_GE(init, 0) << "never initialised";
+  EXPECT_LE(init, 26);  // the first pair 10 cm apart comes at upload 18-22
+  ASSERT_GE(est.size(), 8u);
+  EXPECT_LT(ate(est, gt, true), 0.01);
+}
+
+// Real street: the car drives ~1 m per frame with most points far away. The
+// two-view step must accept the forward motion early, and tracking follow it.
+TEST(SlamRealDataTest, Kitti07InitialisesAndTracks) {
+  const std::string dir = kRealData + "/kitti07_0-159";
+  if (!std::filesystem::is_directory(dir)) {
+    GTEST_SKIP() << "real test data not found at " << dir << ": skipping this test";
+  }
+  const Dataset data = Dataset::open(dir);
+  SlamSystem slam(data.camera());
+  std::vector<Eigen::Vector3d> est, gt;
+  int tracked = 0, init = -1;
+  const size_t n = std::min<size_t>(40, data.size());
+  for (size_t i = 0; i < n; ++i) {
+    const DatasetFrame& f = data.frame(i);
+    const auto r = slam.track(DeviceId(1), data.loadImage(i, cv::IMREAD_GRAYSCALE), f.timestamp,
+                              static_cast<uint32_t>(i));
+    if (r.initialised) init = static_cast<int>(i);
+    if (r.state != TrackingState::kOk) continue;
+    ++tracked;
+    ASSERT_TRUE(f.T_w_c_gt.has_value());
+    est.push_back(r.T_w_c.translation());
+    gt.push_back(f.T_w_c_gt->translation());
+  }
+  ASSERT_GE(init, 0) << "never initialised";
+  EXPECT_LE(init, 20);
+  EXPECT_GE(tracked, 0.95 * (static_cast<int>(n) - init)) << tracked << " tracked";
+  ASSERT_GE(est.size(), 10u);
+  EXPECT_LT(ate(est, gt, true), 0.5);  // over ~35 m of driving
+}
+
+TEST(SlamTest, OdometryGivesAMetricMap) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "device_0", 4, 40);
+  SlamSystem slam(renderer.camera());
+  std::vector<Eigen::Vector3d> est, gt;
+  for (const auto& u : uploads) {
+    const auto r = slam.track(DeviceId(1), u.image, u.motion.timestamp, u.frame, u.motion.gravity_c,
+                              u.motion.T_o_c);
+    if (r.state == TrackingState::kOk) {
+      est.push_back(r.T_w_c.translation());
+      gt.push_back(u.motion.T_w_c.translation());
+    }
+  }
+  ASSERT_GE(est.size(), 25u);
+  const Sim3 S = umeyama(est, gt, true);
+  // Metric within the odometry's scale error (1%) plus the two-view estimate.
+  EXPECT_NEAR(S.scale, 1.0, 0.05);
+  // Gravity-aligned: the map's z axis is up.
+  EXPECT_GT((S.R * Eigen::Vector3d::UnitZ()).z(), 0.99);
+}
+
+TEST(SlamTest, TwoDevicesEndInOneMap) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto a = renderUploads(scene, renderer, "device_0", 4, 35);
+  const auto b = renderUploads(scene, renderer, "device_2", 4, 35);
+  SlamSystem slam(renderer.camera());
+  std::vector<Eigen::Vector3d> est, gt;
+  int tracked_b = 0, joined_b = -1;
+  for (size_t i = 0; i < std::max(a.size(), b.size()); ++i) {
+    for (int d = 0; d < 2; ++d) {
+      const auto& ups = d == 0 ? a : b;
+      if (i >= ups.size()) continue;
+      const auto r = slam.track(DeviceId(d + 1), ups[i].image, ups[i].motion.timestamp,
+                                ups[i].frame, ups[i].motion.gravity_c);
+      if (r.state != TrackingState::kOk) continue;
+      if (d == 1) {
+        ++tracked_b;
+        if (joined_b < 0) joined_b = static_cast<int>(i);
+      }
+      est.push_back(r.T_w_c.translation());
+      gt.push_back(ups[i].motion.T_w_c.translation());
+    }
+  }
+  EXPECT_GE(joined_b, 0) << "the second device never joined the map";
+  EXPECT_GE(tracked_b, 0.8 * static_cast<int>(b.size()));
+  ASSERT_GE(est.size(), 20u);
+  // Both devices' poses fit the ground truth with a single transform.
+  EXPECT_LT(ate(est, gt, true), 0.05);
+  // Keyframes from both devices are in the map.
+  auto lock = slam.map().readLock();
+  bool has[3] = {false, false, false};
+  for (const auto& id : slam.map().keyframeIds()) has[slam.map().keyframe(id)->device.value] = true;
+  EXPECT_TRUE(has[1]);
+  EXPECT_TRUE(has[2]);
+}
+
+// Trackers of two devices on their own threads and the mapper on its thread,
+// against one map, while a reader checks the map's invariants: the server's
+// concurrency. (Run under -fsanitize=thread to check for data races too.)
+TEST(SlamTest, ConcurrentTrackersAndMapperKeepTheMapConsistent) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto a = renderUploads(scene, renderer, "device_0", 4, 30);
+  const auto b = renderUploads(scene, renderer, "device_2", 4, 30);
+  SlamConfig config;
+  config.synchronous_mapping = false;
+  SlamSystem slam(renderer.camera(), config);
+  std::atomic<bool> done{false};
+  std::vector<std::string> problems;
+  std::thread checker([&] {
+    while (!done) {
+      {
+        auto lock = slam.map().readLock();
+        const std::string problem = slam.map().checkConsistency();
+        if (!problem.empty()) problems.push_back(problem);
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+  });
+  int tracked[2] = {0, 0};
+  const auto run = [&](int d) {
+    const auto& ups = d == 0 ? a : b;
+    for (size_t i = 0; i < ups.size(); ++i) {
+      const auto r = slam.track(DeviceId(d + 1), ups[i].image, ups[i].motion.timestamp,
+                                ups[i].frame, ups[i].motion.gravity_c);
+      tracked[d] += r.state == TrackingState::kOk ? 1 : 0;
+      // Paced like uploads (7.5 per second, sped up), so the devices interleave.
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+  };
+  std::thread first(run, 0), second(run, 1);
+  first.join();
+  second.join();
+  slam.mapper().stopThread();
+  done = true;
+  checker.join();
+  EXPECT_TRUE(problems.empty()) << problems.front();
+  auto lock = slam.map().readLock();
+  EXPECT_EQ(slam.map().checkConsistency(), "");
+  EXPECT_GE(slam.map().numKeyFrames(), 5u);
+  // One device created the map; together they tracked most uploads.
+  EXPECT_GE(tracked[0] + tracked[1], 30) << tracked[0] << " + " << tracked[1];
+}
+
+// device_1 walks the corridor the other way: it sees device_0's map from the
+// opposite side (floor and ceiling rotated 180 degrees in the image).
+TEST(SlamTest, DeviceWalkingTheOtherWayJoins) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto a = renderUploads(scene, renderer, "device_0", 4, 45);       // x 0.6 -> 7.3
+  const auto b = renderUploads(scene, renderer, "device_1", 4, 14, 522);  // x 13.0 -> 11.0
+  SlamSystem slam(renderer.camera());
+  std::vector<Eigen::Vector3d> est, gt;
+  for (const auto& u : a) {
+    const auto r =
+        slam.track(DeviceId(1), u.image, u.motion.timestamp, u.frame, u.motion.gravity_c);
+    if (r.state != TrackingState::kOk) continue;
+    est.push_back(r.T_w_c.translation());
+    gt.push_back(u.motion.T_w_c.translation());
+  }
+  const size_t device_0_poses = est.size();
+  ASSERT_GE(device_0_poses, 30u);
+  int joined = -1, tracked = 0;
+  for (size_t i = 0; i < b.size(); ++i) {
+    const auto r = slam.track(DeviceId(2), b[i].image, b[i].motion.timestamp, b[i].frame,
+                              b[i].motion.gravity_c);
+    if (r.state != TrackingState::kOk) continue;
+    if (joined < 0) joined = static_cast<int>(i);
+    ++tracked;
+    est.push_back(r.T_w_c.translation());
+    gt.push_back(b[i].motion.T_w_c.translation());
+  }
+  std::printf("joined at upload %d, tracked %d of %zu\n", joined, tracked, b.size());
+  ASSERT_GE(joined, 0) << "the device walking the other way never joined";
+  EXPECT_GE(tracked, static_cast<int>(b.size()) - joined - 2);
+  // One transform for both devices: the join is not a wrong alignment.
+  EXPECT_LT(ate(est, gt, true), 0.05);
+}
+
+// A device at rest (the EuRoC clip's vehicle before take-off): no two-view
+// attempt is wasted, and the reason says so.
+TEST(SlamTest, DeviceAtRestDoesNotInitialise) {
+  const Scene scene = loadScene(kScenes + "/room.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "half_circle", 4, 1);
+  SlamSystem slam(renderer.camera());
+  TrackResult r;
+  for (int i = 0; i < 5; ++i) r = slam.track(DeviceId(1), uploads[0].image, 0.1 * i, 4 * i);
+  EXPECT_EQ(r.state, TrackingState::kNotInitialised);
+  EXPECT_NE(r.message.find("has not moved"), std::string::npos) << r.message;
+  auto lock = slam.map().readLock();
+  EXPECT_FALSE(slam.map().initialized());
+}
+
+TEST(SlamTest, BadImagesAreReportedAndSkipped) {
+  const Scene scene = loadScene(kScenes + "/room.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "half_circle", 4, 16);
+  SlamSystem slam(renderer.camera());
+  size_t i = 0;
+  for (; i < 10; ++i) {
+    slam.track(DeviceId(1), uploads[i].image, uploads[i].motion.timestamp, uploads[i].frame);
+  }
+  ASSERT_EQ(slam.tracker(DeviceId(1)).state(), TrackingState::kOk);
+  size_t keyframes;
+  {
+    auto lock = slam.map().readLock();
+    keyframes = slam.map().numKeyFrames();
+  }
+  const cv::Mat black = cv::Mat::zeros(480, 640, CV_8UC1);
+  const cv::Mat blank(480, 640, CV_8UC1, cv::Scalar(200));
+  const cv::Mat small = cv::Mat::zeros(100, 100, CV_8UC1);
+  std::vector<uint8_t> jpeg;
+  cv::imencode(".jpg", uploads[10].image, jpeg);
+  jpeg.resize(jpeg.size() / 3);  // truncated JPEG: decodes partly or not at all
+  const cv::Mat truncated = cv::imdecode(jpeg, cv::IMREAD_GRAYSCALE);
+  for (const cv::Mat& bad : {black, blank, small, cv::Mat()}) {
+    const auto r = slam.track(DeviceId(1), bad, 0.0, 0);
+    EXPECT_NE(r.state, TrackingState::kNotInitialised);
+    EXPECT_FALSE(r.message.empty());
+  }
+  // The map is unchanged by the bad images.
+  {
+    auto lock = slam.map().readLock();
+    EXPECT_EQ(slam.map().numKeyFrames(), keyframes);
+  }
+  // A truncated JPEG decodes partly (or not at all): tracked or reported, no crash.
+  const auto rt = slam.track(DeviceId(1), truncated, 0.0, 0);
+  EXPECT_TRUE(rt.state == TrackingState::kOk || !rt.message.empty());
+  bool recovered = false;
+  for (i = 10; i < uploads.size(); ++i) {
+    const auto r =
+        slam.track(DeviceId(1), uploads[i].image, uploads[i].motion.timestamp, uploads[i].frame);
+    recovered |= r.state == TrackingState::kOk;
+  }
+  EXPECT_TRUE(recovered);
+  // A repeated image is tracked (zero motion), not a crash.
+  const auto r1 = slam.track(DeviceId(1), uploads.back().image, 100.0, 1000);
+  const auto r2 = slam.track(DeviceId(1), uploads.back().image, 100.1, 1001);
+  EXPECT_EQ(r2.state, r1.state);
+}
+
+}  // namespace
+}  // namespace ecar
