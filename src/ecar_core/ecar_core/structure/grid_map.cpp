@@ -5,6 +5,7 @@
 #include <string>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/structure/grid_cells.h"
 
 namespace ecar {
 
@@ -91,6 +92,75 @@ void GridMap::clear() {
   std::unique_lock<std::shared_mutex> lock(mutex_);
   keyframe_cells_.clear();
   cell_keyframes_.clear();
+  object_cells_.clear();
+  cell_objects_.clear();
+}
+
+void GridMap::detachLocked(ObjectId id) {
+  const auto it = object_cells_.find(id);
+  if (it == object_cells_.end()) return;
+  for (CellKey c : it->second) {
+    const auto objects = cell_objects_.find(c);
+    if (objects == cell_objects_.end()) continue;
+    auto& list = objects->second;
+    list.erase(std::remove(list.begin(), list.end(), id), list.end());
+    if (list.empty()) cell_objects_.erase(objects);
+  }
+  object_cells_.erase(it);
+}
+
+void GridMap::attachLocked(ObjectId id, std::vector<CellKey> cells) {
+  detachLocked(id);
+  for (CellKey c : cells) cell_objects_[c].push_back(id);
+  object_cells_[id] = std::move(cells);
+}
+
+void GridMap::attachObject(const VirtualObject& vo, double cell_size, double margin) {
+  std::vector<CellKey> cells;
+  if (!vo.deleted) cells = attachmentCells(vo, cell_size, margin);
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  if (vo.deleted) {
+    detachLocked(vo.id);
+  } else {
+    attachLocked(vo.id, std::move(cells));
+  }
+}
+
+void GridMap::attachObjects(const std::vector<VirtualObject>& objects, double cell_size,
+                            double margin) {
+  std::vector<std::pair<ObjectId, std::vector<CellKey>>> links;
+  for (const VirtualObject& vo : objects) {
+    if (!vo.deleted) links.emplace_back(vo.id, attachmentCells(vo, cell_size, margin));
+  }
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  object_cells_.clear();
+  cell_objects_.clear();
+  for (auto& [id, cells] : links) attachLocked(id, std::move(cells));
+}
+
+std::vector<CellKey> GridMap::cellsOfObject(ObjectId id) const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  const auto it = object_cells_.find(id);
+  return it == object_cells_.end() ? std::vector<CellKey>() : it->second;
+}
+
+std::vector<ObjectId> GridMap::objectsInCells(const std::vector<CellKey>& cells) const {
+  std::vector<ObjectId> ids;
+  {
+    std::shared_lock<std::shared_mutex> lock(mutex_);
+    for (const CellKey& c : cells) {
+      const auto it = cell_objects_.find(c);
+      if (it != cell_objects_.end()) ids.insert(ids.end(), it->second.begin(), it->second.end());
+    }
+  }
+  std::sort(ids.begin(), ids.end());
+  ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+  return ids;
+}
+
+size_t GridMap::numObjects() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return object_cells_.size();
 }
 
 }  // namespace ecar

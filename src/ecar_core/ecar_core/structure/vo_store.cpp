@@ -7,7 +7,6 @@
 #include <utility>
 
 #include "ecar_core/common/error.h"
-#include "ecar_core/structure/grid_cells.h"
 #include "ecar_core/structure/vo_database.h"
 
 namespace ecar {
@@ -82,12 +81,9 @@ VoStore::VoStore(const VoStoreConfig& config)
     : config_((config.validate(), config)), map_min_(config.map_min), map_max_(config.map_max) {
   db_ = std::make_unique<VoDatabase>(config_);
   uint32_t max_id = 0;
-  const uint32_t stored_next = db_->load([&](VoRecord record) {
-    Entry entry;
-    static_cast<VoRecord&>(entry) = std::move(record);
+  const uint32_t stored_next = db_->load([&](VoRecord entry) {
     max_id = std::max(max_id, entry.vo.id.value);
     if (!entry.vo.deleted) {
-      entry.cells = attachmentCells(entry.vo, config_.cell_size, config_.attach_margin);
       attach(entry);
       ++num_live_;
     }
@@ -171,7 +167,7 @@ VoReject VoStore::check(VirtualObject* vo, std::string* reason) const {
 
 VoReject VoStore::checkExisting(ObjectId id, uint32_t base_version, bool unconditional_ok,
                                 const std::string& editor, std::string* reason,
-                                const Entry** entry) const {
+                                const VoRecord** entry) const {
   const auto it = objects_.find(id);
   if (it == objects_.end()) {
     *reason = "unknown object id " + std::to_string(id.value);
@@ -202,12 +198,11 @@ VoReject VoStore::checkExisting(ObjectId id, uint32_t base_version, bool uncondi
   return VoReject::kStaleVersion;
 }
 
-void VoStore::attach(const Entry& entry) {
-  for (const CellKey& c : entry.cells) cell_index_[c].push_back(entry.vo.id);
+void VoStore::attach(const VoRecord& entry) {
   if (entry.keyframe.valid()) keyframe_index_[entry.keyframe].push_back(entry.vo.id);
 }
 
-void VoStore::detach(const Entry& entry) {
+void VoStore::detach(const VoRecord& entry) {
   auto drop = [&](auto& index, const auto& key) {
     const auto it = index.find(key);
     if (it == index.end()) return;
@@ -215,7 +210,6 @@ void VoStore::detach(const Entry& entry) {
     ids.erase(std::remove(ids.begin(), ids.end(), entry.vo.id), ids.end());
     if (ids.empty()) index.erase(it);
   };
-  for (const CellKey& c : entry.cells) drop(cell_index_, c);
   if (entry.keyframe.valid()) drop(keyframe_index_, entry.keyframe);
 }
 
@@ -240,7 +234,7 @@ VoOutcome accept(ObjectId id, uint32_t version) {
 
 VoOutcome VoStore::registerObject(const VirtualObject& request, KeyFrameId keyframe) {
   std::lock_guard<std::mutex> write(write_mutex_);
-  Entry entry;
+  VoRecord entry;
   entry.vo = request;
   std::string reason;
   VoReject code = check(&entry.vo, &reason);
@@ -260,7 +254,6 @@ VoOutcome VoStore::registerObject(const VirtualObject& request, KeyFrameId keyfr
   entry.keyframe = keyframe;
   entry.last_editor = entry.vo.owner;
   entry.editor_since = 0;
-  entry.cells = attachmentCells(entry.vo, config_.cell_size, config_.attach_margin);
   std::string error;
   if (!db_->write(entry, next_id_ + 1, &error)) {
     return reject(VoReject::kStorage, "database write failed: " + error, ObjectId(), 0);
@@ -278,11 +271,11 @@ VoOutcome VoStore::manipulate(ObjectId id, uint32_t base_version, const VirtualO
                               const std::string& editor) {
   std::lock_guard<std::mutex> write(write_mutex_);
   std::string reason;
-  const Entry* old = nullptr;
+  const VoRecord* old = nullptr;
   VoReject code = checkExisting(id, base_version, false, editor, &reason, &old);
   const uint32_t current = old ? old->vo.version : 0;
   if (code != VoReject::kNone) return reject(code, reason, id, current);
-  Entry entry = *old;
+  VoRecord entry = *old;
   entry.vo = new_state;
   code = check(&entry.vo, &reason);
   if (code != VoReject::kNone) return reject(code, reason, id, current);
@@ -292,13 +285,12 @@ VoOutcome VoStore::manipulate(ObjectId id, uint32_t base_version, const VirtualO
   entry.vo.deleted = false;
   if (editor.empty() || editor != old->last_editor) entry.editor_since = current;
   entry.last_editor = editor;
-  entry.cells = attachmentCells(entry.vo, config_.cell_size, config_.attach_margin);
   std::string error;
   if (!db_->write(entry, std::nullopt, &error)) {
     return reject(VoReject::kStorage, "database write failed: " + error, id, current);
   }
   std::unique_lock<std::shared_mutex> state(state_mutex_);
-  Entry& stored = objects_.at(id);
+  VoRecord& stored = objects_.at(id);
   detach(stored);
   stored = std::move(entry);
   attach(stored);
@@ -308,41 +300,25 @@ VoOutcome VoStore::manipulate(ObjectId id, uint32_t base_version, const VirtualO
 VoOutcome VoStore::remove(ObjectId id, uint32_t base_version, const std::string& editor) {
   std::lock_guard<std::mutex> write(write_mutex_);
   std::string reason;
-  const Entry* old = nullptr;
+  const VoRecord* old = nullptr;
   const VoReject code = checkExisting(id, base_version, true, editor, &reason, &old);
   const uint32_t current = old ? old->vo.version : 0;
   if (code != VoReject::kNone) return reject(code, reason, id, current);
-  Entry entry = *old;
+  VoRecord entry = *old;
   entry.vo.version = current + 1;
   entry.vo.deleted = true;
   if (editor.empty() || editor != old->last_editor) entry.editor_since = current;
   entry.last_editor = editor;
-  entry.cells.clear();
   std::string error;
   if (!db_->write(entry, std::nullopt, &error)) {
     return reject(VoReject::kStorage, "database write failed: " + error, id, current);
   }
   std::unique_lock<std::shared_mutex> state(state_mutex_);
-  Entry& stored = objects_.at(id);
+  VoRecord& stored = objects_.at(id);
   detach(stored);
   stored = std::move(entry);
   --num_live_;
   return accept(id, current + 1);
-}
-
-std::vector<VirtualObject> VoStore::objectsInCells(const std::vector<CellKey>& cells) const {
-  std::shared_lock<std::shared_mutex> state(state_mutex_);
-  std::vector<ObjectId> ids;
-  for (const CellKey& c : cells) {
-    const auto it = cell_index_.find(c);
-    if (it != cell_index_.end()) ids.insert(ids.end(), it->second.begin(), it->second.end());
-  }
-  std::sort(ids.begin(), ids.end());
-  ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
-  std::vector<VirtualObject> out;
-  out.reserve(ids.size());
-  for (ObjectId id : ids) out.push_back(objects_.at(id).vo);
-  return out;
 }
 
 std::vector<VirtualObject> VoStore::objectsOfKeyFrames(
@@ -387,15 +363,14 @@ std::vector<VirtualObject> VoStore::allObjects() const {
   std::vector<VirtualObject> out;
   out.reserve(objects_.size());
   for (const auto& [id, entry] : objects_) out.push_back(entry.vo);
-  std::sort(out.begin(), out.end(),
-            [](const VirtualObject& a, const VirtualObject& b) { return a.id < b.id; });
   return out;
 }
 
-std::vector<CellKey> VoStore::cellsOf(ObjectId id) const {
+void VoStore::forEachLive(const std::function<void(const VirtualObject&)>& visit) const {
   std::shared_lock<std::shared_mutex> state(state_mutex_);
-  const auto it = objects_.find(id);
-  return it == objects_.end() ? std::vector<CellKey>() : it->second.cells;
+  for (const auto& [id, entry] : objects_) {
+    if (!entry.vo.deleted) visit(entry.vo);
+  }
 }
 
 KeyFrameId VoStore::keyFrameOf(ObjectId id) const {
@@ -459,24 +434,17 @@ VoSnapshot VoStore::snapshot() const {
   for (const auto& [id, e] : objects_) {
     out.objects.push_back(e);
   }
-  std::sort(out.objects.begin(), out.objects.end(),
-            [](const VoRecord& a, const VoRecord& b) { return a.vo.id < b.vo.id; });
   return out;
 }
 
 void VoStore::replaceAll(const VoSnapshot& snapshot) {
   checkVoSnapshot(snapshot, config_.database_path + ": replacing the VOs");
-  std::unordered_map<ObjectId, Entry> objects;
+  std::map<ObjectId, VoRecord> objects;
   std::vector<const VoRecord*> rows;
   size_t live = 0;
   for (const VoRecord& r : snapshot.objects) {
-    Entry e;
-    static_cast<VoRecord&>(e) = r;
-    if (!e.vo.deleted) {
-      e.cells = attachmentCells(e.vo, config_.cell_size, config_.attach_margin);
-      ++live;
-    }
-    objects.emplace(e.vo.id, std::move(e));
+    if (!r.vo.deleted) ++live;
+    objects.emplace(r.vo.id, r);
   }
   for (const VoRecord& r : snapshot.objects) rows.push_back(&objects.at(r.vo.id));
   std::lock_guard<std::mutex> write(write_mutex_);
@@ -487,7 +455,6 @@ void VoStore::replaceAll(const VoSnapshot& snapshot) {
   }
   std::unique_lock<std::shared_mutex> state(state_mutex_);
   objects_ = std::move(objects);
-  cell_index_.clear();
   keyframe_index_.clear();
   for (const auto& kv : objects_) {
     if (!kv.second.vo.deleted) attach(kv.second);
@@ -499,7 +466,7 @@ void VoStore::replaceAll(const VoSnapshot& snapshot) {
 size_t VoStore::moveKeyFrame(KeyFrameId from, KeyFrameId to) {
   if (!from.valid() || from == to) return 0;
   std::lock_guard<std::mutex> write(write_mutex_);
-  std::vector<Entry> moved;
+  std::vector<VoRecord> moved;
   {
     std::shared_lock<std::shared_mutex> state(state_mutex_);
     const auto it = keyframe_index_.find(from);
@@ -510,15 +477,15 @@ size_t VoStore::moveKeyFrame(KeyFrameId from, KeyFrameId to) {
     }
   }
   std::vector<const VoRecord*> rows;
-  for (const Entry& e : moved) rows.push_back(&e);
+  for (const VoRecord& e : moved) rows.push_back(&e);
   std::string error;
   if (!db_->writeAll(rows, &error)) {
     throw Error(config_.database_path + ": moving the objects of keyframe " +
                 std::to_string(from.value) + " failed: " + error);
   }
   std::unique_lock<std::shared_mutex> state(state_mutex_);
-  for (const Entry& e : moved) {
-    Entry& stored = objects_.at(e.vo.id);
+  for (const VoRecord& e : moved) {
+    VoRecord& stored = objects_.at(e.vo.id);
     detach(stored);
     stored.keyframe = to;
     attach(stored);

@@ -1,14 +1,16 @@
 // The server's store of virtual objects (VOs): registration, manipulation and
-// deletion with versions, attachment to grid cells (or, the baseline, to a
-// keyframe), and persistence in SQLite. No ROS: ecar_server converts
-// ecar_msgs/Interaction into these calls and VoOutcome into InteractionResult.
+// deletion with versions and their rules (checks, conflicts), attachment to a
+// keyframe (the baseline; grid-cell attachment is the grid connection's,
+// grid_map.h), and persistence in SQLite (vo_database.h). No ROS: ecar_server
+// converts ecar_msgs/Interaction into these calls and VoOutcome into
+// InteractionResult.
 //
 //   VoStoreConfig config;
 //   config.database_path = "/var/lib/ecar/vo.sqlite";
 //   VoStore store(config);                        // opens (or creates) and loads the database
 //   VoOutcome r = store.registerObject(vo, nearest_keyframe);
 //   VoOutcome m = store.manipulate(r.id, r.version, moved, "device_1");
-//   std::vector<VirtualObject> vos = store.objectsInCells(visible_cells);
+//   std::vector<VirtualObject> vos = store.objects(grid.objectsInCells(visible_cells));
 //
 // Durability: every accepted change is committed to the database (one
 // transaction, WAL journal) before its outcome is returned, so a change that
@@ -18,11 +20,13 @@
 // Thread-safety: every public method is thread-safe. Changes are serialised
 // by one writer mutex (held across the SQLite commit); the in-memory objects
 // and indices are guarded by a reader-writer lock that writers take only for
-// the short in-memory update after the commit, so readers (objectsInCells,
-// objectsOfKeyFrames, get) never wait for a disk write.
+// the short in-memory update after the commit, so readers (objects,
+// objectsOfKeyFrames, get, forEachLive) never wait for a disk write.
 #pragma once
 
 #include <cstdint>
+#include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -78,8 +82,6 @@ class VoStore {
   VoOutcome remove(ObjectId id, uint32_t base_version = 0,
                    const std::string& editor = std::string());
 
-  /// Live objects attached to any of `cells` (grid attachment), each once, by id.
-  std::vector<VirtualObject> objectsInCells(const std::vector<CellKey>& cells) const;
   /// Live objects attached to any of `keyframes` (keyframe attachment), each once, by id.
   std::vector<VirtualObject> objectsOfKeyFrames(const std::vector<KeyFrameId>& keyframes) const;
   /// Latest state of `id` (a tombstone included); nullopt when unknown.
@@ -89,8 +91,9 @@ class VoStore {
   std::vector<VirtualObject> objects(const std::vector<ObjectId>& ids) const;
   /// Every stored object (tombstones included), by id.
   std::vector<VirtualObject> allObjects() const;
-  /// The cells `id` is attached to (empty when unknown or deleted).
-  std::vector<CellKey> cellsOf(ObjectId id) const;
+  /// Calls `visit` with every live object, by increasing id, under the
+  /// store's read lock (no copies; `visit` must not call the store).
+  void forEachLive(const std::function<void(const VirtualObject&)>& visit) const;
   /// The keyframe `id` hangs on (0 when none).
   KeyFrameId keyFrameOf(ObjectId id) const;
 
@@ -130,11 +133,6 @@ class VoStore {
   VoAttachMode attachMode() const { return config_.attach_mode; }
 
  private:
-  /// A stored record and the cells it is attached to.
-  struct Entry : VoRecord {
-    std::vector<CellKey> cells;
-  };
-
   /// Checks a requested state and canonicalises it (LINE centre, ANCHOR end
   /// points, unit normal). Returns kNone or the rejection with `reason` set.
   VoReject check(VirtualObject* vo, std::string* reason) const;
@@ -142,10 +140,10 @@ class VoStore {
   /// base_version 0 passes when `unconditional_ok`). `entry` receives the
   /// object when it is known.
   VoReject checkExisting(ObjectId id, uint32_t base_version, bool unconditional_ok,
-                         const std::string& editor, std::string* reason, const Entry** entry) const;
-  /// Puts `entry` in the indices / takes it out. state_mutex_ held exclusively.
-  void attach(const Entry& entry);
-  void detach(const Entry& entry);
+                         const std::string& editor, std::string* reason, const VoRecord** entry) const;
+  /// Puts `record` in the keyframe index / takes it out. state_mutex_ held exclusively.
+  void attach(const VoRecord& record);
+  void detach(const VoRecord& record);
 
   const VoStoreConfig config_;
   /// Serialises changes; held across the database write. Guards db_.
@@ -156,8 +154,7 @@ class VoStore {
   /// read them (a writer reads them under write_mutex_ alone).
   mutable std::shared_mutex state_mutex_;
   uint32_t next_id_ = 1;
-  std::unordered_map<ObjectId, Entry> objects_;
-  std::unordered_map<CellKey, std::vector<ObjectId>> cell_index_;
+  std::map<ObjectId, VoRecord> objects_;  ///< by id: readers list them in order
   std::unordered_map<KeyFrameId, std::vector<ObjectId>> keyframe_index_;
   size_t num_live_ = 0;
   Eigen::Vector3d map_min_, map_max_;

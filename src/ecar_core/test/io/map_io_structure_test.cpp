@@ -13,6 +13,7 @@
 
 #include "ecar_core/common/error.h"
 #include "ecar_core/structure/grid_caster.h"
+#include "ecar_core/structure/grid_cells.h"
 #include "ecar_core/structure/grid_map.h"
 #include "ecar_core/io/map_file.h"
 #include "ecar_core/io/slam_map_codec.h"
@@ -167,6 +168,8 @@ void loadStructure(const std::string& path, PlaneMap* planes, GridMap* grid, VoS
   store->replaceAll(state.vos);
   planes->load(state.planes, state.next_plane_id);
   grid->load(state.grid);
+  grid->attachObjects(store->allObjects(), store->config().cell_size,
+                      store->config().attach_margin);
 }
 
 TEST(MapIoStructure, RoundTripKeepsEverythingAndSurvivesReopening) {
@@ -202,10 +205,11 @@ TEST(MapIoStructure, RoundTripKeepsEverythingAndSurvivesReopening) {
     // Attachments are rebuilt: the moved line is in its new cells, on its keyframe.
     const VirtualObject moved = *store2.get(ObjectId(1));
     EXPECT_EQ(moved.version, 3u);
-    EXPECT_EQ(store2.cellsOf(ObjectId(1)), store.cellsOf(ObjectId(1)));
-    EXPECT_EQ(store2.objectsInCells({cellOf(moved.position, 0.1)}).size(), 1u);
+    EXPECT_EQ(grid2.cellsOfObject(ObjectId(1)), attachmentCells(*store.get(ObjectId(1)), 0.1,
+                                                                 store.config().attach_margin));
+    EXPECT_EQ(grid2.objectsInCells({cellOf(moved.position, 0.1)}).size(), 1u);
     EXPECT_EQ(store2.objectsOfKeyFrames({KeyFrameId(5)}).size(), 1u);
-    EXPECT_TRUE(store2.cellsOf(ObjectId(3)).empty());  // the tombstone
+    EXPECT_TRUE(grid2.cellsOfObject(ObjectId(3)).empty());  // the tombstone
     // device_1 keeps its stale-base allowance: a drag continues from version 2.
     EXPECT_TRUE(store2.manipulate(ObjectId(1), 2, line(0.7), "device_1").accepted);
   }

@@ -3,6 +3,7 @@
 // attachment; reload from SQLite; acknowledged changes surviving a SIGKILL;
 // corrupt, foreign and locked database files.
 #include "ecar_core/structure/grid_cells.h"
+#include "ecar_core/structure/grid_map.h"
 #include "ecar_core/structure/vo_store.h"
 
 #include <signal.h>
@@ -307,19 +308,40 @@ TEST(VoStore, OwnStaleBaseVersionDuringADrag) {
 
 // ---------------------------------------------------------------- grid
 
+// A store whose accepted changes attach their objects to a grid, as the grid
+// connection does (server/grid_connection.h).
+struct AttachedStore {
+  explicit AttachedStore(const VoStoreConfig& config) : store(config) {}
+  ObjectId registerObject(const VirtualObject& vo) { return attached(store.registerObject(vo)); }
+  bool manipulate(ObjectId id, uint32_t base, const VirtualObject& vo) {
+    return attached(store.manipulate(id, base, vo)).valid();
+  }
+  bool remove(ObjectId id) { return attached(store.remove(id)).valid(); }
+  std::vector<VirtualObject> objectsInCells(const std::vector<CellKey>& cells) const {
+    return store.objects(grid.objectsInCells(cells));
+  }
+  ObjectId attached(const VoOutcome& out) {
+    if (!out.accepted) return ObjectId();
+    grid.attachObject(*store.get(out.id), store.config().cell_size, store.config().attach_margin);
+    return out.id;
+  }
+  VoStore store;
+  GridMap grid;
+};
+
 TEST(VoStoreGrid, AnchorCell) {
   VoStoreConfig config = memoryConfig();
   config.attach_margin = 0.0;
-  VoStore store(config);
-  const ObjectId id = store.registerObject(anchor({0.15, 0.25, 0.05})).id;
-  EXPECT_EQ(store.cellsOf(id), std::vector<CellKey>({CellKey{1, 2, 0}}));
+  AttachedStore store(config);
+  const ObjectId id = store.registerObject(anchor({0.15, 0.25, 0.05}));
+  EXPECT_EQ(store.grid.cellsOfObject(id), std::vector<CellKey>({CellKey{1, 2, 0}}));
   const std::vector<VirtualObject> got = store.objectsInCells({CellKey{1, 2, 0}});
   ASSERT_EQ(got.size(), 1u);
   EXPECT_EQ(got[0].id, id);
   EXPECT_TRUE(store.objectsInCells({CellKey{0, 0, 0}, CellKey{1, 2, 1}}).empty());
   // Negative coordinates: floor, not truncation.
-  const ObjectId neg = store.registerObject(anchor({-0.05, -0.15, -0.01})).id;
-  EXPECT_EQ(store.cellsOf(neg), std::vector<CellKey>({CellKey{-1, -2, -1}}));
+  const ObjectId neg = store.registerObject(anchor({-0.05, -0.15, -0.01}));
+  EXPECT_EQ(store.grid.cellsOfObject(neg), std::vector<CellKey>({CellKey{-1, -2, -1}}));
 }
 
 TEST(VoStoreGrid, FloorLineCrossesTheAnalyticCells) {
@@ -379,24 +401,24 @@ TEST(VoStoreGrid, MarginCoversBothLayersOfAFloorAtACellBoundary) {
 TEST(VoStoreGrid, MovingReattachesAndDeleteDetaches) {
   VoStoreConfig config = memoryConfig();
   config.attach_margin = 0.0;
-  VoStore store(config);
-  const ObjectId id = store.registerObject(line({0.05, 0.05, 0.05}, {1.05, 0.05, 0.05})).id;
-  const ObjectId other = store.registerObject(anchor({0.55, 0.05, 0.05})).id;
+  AttachedStore store(config);
+  const ObjectId id = store.registerObject(line({0.05, 0.05, 0.05}, {1.05, 0.05, 0.05}));
+  const ObjectId other = store.registerObject(anchor({0.55, 0.05, 0.05}));
   EXPECT_EQ(store.objectsInCells({CellKey{5, 0, 0}}).size(), 2u);  // both, each once
   EXPECT_EQ(store.objectsInCells({CellKey{3, 0, 0}, CellKey{4, 0, 0}}).size(), 1u);
 
-  ASSERT_TRUE(store.manipulate(id, 1, line({20.05, 0.05, 0.05}, {20.05, 1.05, 0.05})).accepted);
+  ASSERT_TRUE(store.manipulate(id, 1, line({20.05, 0.05, 0.05}, {20.05, 1.05, 0.05})));
   const std::vector<VirtualObject> old_place = store.objectsInCells({CellKey{3, 0, 0}});
   EXPECT_TRUE(old_place.empty());
   const std::vector<VirtualObject> new_place = store.objectsInCells({CellKey{200, 7, 0}});
   ASSERT_EQ(new_place.size(), 1u);
   EXPECT_EQ(new_place[0].id, id);
   EXPECT_EQ(new_place[0].version, 2u);  // at its latest version
-  EXPECT_EQ(store.cellsOf(id).size(), 11u);
+  EXPECT_EQ(store.grid.cellsOfObject(id).size(), 11u);
 
-  ASSERT_TRUE(store.remove(id).accepted);
+  ASSERT_TRUE(store.remove(id));
   EXPECT_TRUE(store.objectsInCells({CellKey{200, 7, 0}}).empty());
-  EXPECT_TRUE(store.cellsOf(id).empty());
+  EXPECT_TRUE(store.grid.cellsOfObject(id).empty());
   const std::vector<VirtualObject> left = store.objectsInCells({CellKey{5, 0, 0}});
   ASSERT_EQ(left.size(), 1u);
   EXPECT_EQ(left[0].id, other);
@@ -488,14 +510,19 @@ TEST(VoStorePersistence, ReloadsEveryObjectAndTheIdCounter) {
     ASSERT_TRUE(store.remove(ObjectId(5)).accepted);
     ASSERT_TRUE(store.remove(ObjectId(20)).accepted);  // the highest id, deleted
     saved = store.allObjects();
-    for (const VirtualObject& vo : saved) cells.push_back(store.cellsOf(vo.id));
+    for (const VirtualObject& vo : saved) {
+      cells.push_back(vo.deleted ? std::vector<CellKey>()
+                                 : attachmentCells(vo, config.cell_size, config.attach_margin));
+    }
   }
   VoStore reopened(config);
   const std::vector<VirtualObject> loaded = reopened.allObjects();
   ASSERT_EQ(loaded.size(), saved.size());
   for (size_t i = 0; i < saved.size(); ++i) {
     expectSame(loaded[i], saved[i]);
-    EXPECT_EQ(reopened.cellsOf(saved[i].id), cells[i]);
+    EXPECT_EQ(loaded[i].deleted ? std::vector<CellKey>()
+                                : attachmentCells(loaded[i], config.cell_size, config.attach_margin),
+              cells[i]);
   }
   EXPECT_EQ(reopened.get(ObjectId(3))->version, 3u);
   EXPECT_TRUE(reopened.get(ObjectId(5))->deleted);
@@ -714,10 +741,9 @@ TEST(VoStore, ConcurrentWritersAndReaders) {
   std::atomic<bool> done{false};
   std::atomic<size_t> reads{0};
   std::thread reader([&] {
-    std::vector<CellKey> cells;
-    for (int x = 0; x < 20; ++x) cells.push_back(CellKey{x, 0, 0});
     while (!done) {
-      for (const VirtualObject& vo : store.objectsInCells(cells)) ASSERT_GE(vo.version, 1u);
+      store.forEachLive([](const VirtualObject& vo) { ASSERT_GE(vo.version, 1u); });
+      for (const VirtualObject& vo : store.allObjects()) ASSERT_GE(vo.version, 1u);
       ++reads;
     }
   });
@@ -740,7 +766,9 @@ TEST(VoStore, ConcurrentWritersAndReaders) {
   std::set<ObjectId> all;
   for (const auto& v : ids) all.insert(v.begin(), v.end());
   EXPECT_EQ(all.size(), static_cast<size_t>(kThreads * kPerThread));  // unique ids
-  EXPECT_EQ(store.objectsInCells({CellKey{1, 0, 0}}).size(), all.size());
+  const std::vector<VirtualObject> moved = store.allObjects();
+  EXPECT_EQ(moved.size(), all.size());
+  for (const VirtualObject& vo : moved) EXPECT_EQ(cellOf(vo.position, 0.1), (CellKey{1, 0, 0}));
   EXPECT_GT(reads.load(), 0u);
 }
 
@@ -768,11 +796,11 @@ TEST(VoStore, TimePerChange) {
               << " ms/object, manipulate " << man_ms << " ms/change" << std::endl;
   }
 
-  // Lookup on a store of 10,000 strokes spread over a 30 m x 3 m floor.
-  VoStore store(memoryConfig());
+  // Lookup on a grid of 10,000 strokes spread over a 30 m x 3 m floor.
+  AttachedStore store(memoryConfig());
   for (int i = 0; i < 10000; ++i) {
     const double x = 0.003 * i, y = 0.3 * (i % 10);
-    ASSERT_TRUE(store.registerObject(line({x, y, 0.01}, {x + 0.05, y + 0.02, 0.01})).accepted);
+    ASSERT_TRUE(store.registerObject(line({x, y, 0.01}, {x + 0.05, y + 0.02, 0.01})).valid());
   }
   std::vector<CellKey> visible;  // 2,000 cells: a 5 m x 4 m patch of floor
   for (int x = 0; x < 50; ++x) {
@@ -781,7 +809,7 @@ TEST(VoStore, TimePerChange) {
   const auto t0 = std::chrono::steady_clock::now();
   size_t found = 0;
   constexpr int kQueries = 100;
-  for (int q = 0; q < kQueries; ++q) found = store.objectsInCells(visible).size();
+  for (int q = 0; q < kQueries; ++q) found = store.grid.objectsInCells(visible).size();
   const double query_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() /
       kQueries;

@@ -10,10 +10,10 @@
 
 #include "ecar_core/common/camera.h"
 #include "ecar_core/common/geometry.h"
-#include "ecar_core/structure/plane_map.h"
+#include "ecar_core/structure/plane.h"
 #include "ecar_core/common/types.h"
 
-namespace ecar_server::testing {
+namespace ecar::testing {
 
 /// 640x480, fx = fy = 525, principal point at the centre.
 inline ecar::PinholeCamera camera640() {
@@ -57,4 +57,4 @@ inline ecar::PlaneKeyFrameInput floorKeyFrame(ecar::KeyFrameId id, const ecar::S
   return in;
 }
 
-}  // namespace ecar_server::testing
+}  // namespace ecar::testing

@@ -1,0 +1,285 @@
+#include "ecar_core/server/global_graph.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <sstream>
+
+#include "ecar_core/common/error.h"
+#include "ecar_core/io/map_file.h"
+#include "ecar_core/io/slam_map_codec.h"
+#include "ecar_core/io/structure_codec.h"
+
+namespace ecar {
+namespace {
+
+double msSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+      .count();
+}
+
+VoStoreConfig voConfigOf(const GlobalGraphConfig& config) {
+  VoStoreConfig c = config.vo;
+  c.cell_size = config.grid.cell_size;
+  return c;
+}
+
+}  // namespace
+
+void GlobalGraphConfig::validate() const {
+  const auto fail = [](const std::string& key, const std::string& why) {
+    throw Error(key + ": " + why);
+  };
+  if (slam.first_epoch < 1) fail("first_epoch", "must be >= 1");
+  planes.validate();
+  grid.validate();
+  try {
+    voConfigOf(*this).validate();
+  } catch (const Error& e) {
+    fail("vo", e.what());
+  }
+  if (!(vo_map_margin >= 0.0)) fail("vo.map_margin", "must be >= 0 m");
+  if (!(camera_tolerance >= 0.0)) fail("camera_tolerance", "must be >= 0");
+  if (!(devices.device_timeout > 0.0)) fail("device_timeout", "must be > 0 s");
+}
+
+GlobalGraph::GlobalGraph(const GlobalGraphConfig& config)
+    : config_((config.validate(), config)),
+      devices_(config.devices),
+      planes_(config.planes),
+      vos_(std::make_unique<VoStore>(voConfigOf(config))) {
+  grid_.attachObjects(vos_->allObjects(), vos_->config().cell_size, vos_->config().attach_margin);
+}
+
+std::string GlobalGraph::cameraMismatch(const PinholeCamera& camera) const {
+  const CameraParams& a = slam_->camera().params();
+  const CameraParams& b = camera.params();
+  std::ostringstream os;
+  if (a.width != b.width || a.height != b.height) {
+    os << "image size " << b.width << "x" << b.height << " differs from the SLAM camera's "
+       << a.width << "x" << a.height;
+    return os.str();
+  }
+  const double tol = config_.camera_tolerance;
+  const auto off = [tol](double x, double y) { return std::abs(x - y) > tol * std::abs(y); };
+  if (off(b.fx, a.fx) || off(b.fy, a.fy) || off(b.cx, a.cx) || off(b.cy, a.cy)) {
+    os << "intrinsics fx " << b.fx << " fy " << b.fy << " cx " << b.cx << " cy " << b.cy
+       << " differ from the SLAM camera's (fx " << a.fx << " fy " << a.fy << " cx " << a.cx
+       << " cy " << a.cy << ")";
+    return os.str();
+  }
+  for (size_t i = 0; i < a.dist.size(); ++i) {
+    if (std::abs(a.dist[i] - b.dist[i]) > std::max(tol, 1e-9)) {
+      os << "distortion coefficient " << i << " (" << b.dist[i] << ") differs from the SLAM "
+         << "camera's (" << a.dist[i] << ")";
+      return os.str();
+    }
+  }
+  return {};
+}
+
+std::shared_ptr<SlamSystem> GlobalGraph::slamLocked(const PinholeCamera& camera, bool* created) {
+  *created = false;
+  if (slam_) {
+    const std::string why = cameraMismatch(camera);
+    if (!why.empty()) throw Error(why);
+    return slam_;
+  }
+  SlamConfig c = config_.slam;
+  c.synchronous_mapping = false;
+  slam_ = std::make_shared<SlamSystem>(camera, c);
+  *created = true;
+  return slam_;
+}
+
+DeviceConnectResult GlobalGraph::connect(const std::string& name, const PinholeCamera& camera,
+                                         const std::string& sync_mode, uint32_t keyframe_queue,
+                                         double now) {
+  DeviceConnectResult result;
+  result.message = DeviceRegistry::refusal(name, sync_mode);
+  if (!result.message.empty()) return result;
+  std::lock_guard<std::mutex> events(events_mutex_);
+  std::shared_ptr<SlamSystem> created;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    bool is_new = false;
+    try {
+      const auto slam = slamLocked(camera, &is_new);
+      if (is_new) created = slam;
+    } catch (const Error& e) {
+      result.message =
+          std::string("camera refused: ") + e.what() + " (all devices share one SLAM camera)";
+      return result;
+    }
+  }
+  result = devices_.connect(name, sync_mode, keyframe_queue, now);
+  if (created) {
+    for (GraphListener* l : listeners_) l->onSlamCreated(created);
+  }
+  if (result.accepted && !result.reconnected) {
+    for (GraphListener* l : listeners_) l->onDeviceAdded(result.device);
+  }
+  return result;
+}
+
+bool GlobalGraph::disconnect(const std::string& name) {
+  std::lock_guard<std::mutex> events(events_mutex_);
+  const std::optional<DeviceInfo> removed = devices_.disconnect(name);
+  if (removed) {
+    for (GraphListener* l : listeners_) l->onDeviceRemoved(*removed);
+  }
+  return removed.has_value();
+}
+
+std::vector<std::string> GlobalGraph::removeSilent(double now) {
+  std::lock_guard<std::mutex> events(events_mutex_);
+  std::vector<std::string> names;
+  for (const DeviceInfo& d : devices_.removeSilent(now)) {
+    names.push_back(d.name);
+    for (GraphListener* l : listeners_) l->onDeviceRemoved(d);
+  }
+  return names;
+}
+
+std::shared_ptr<SlamSystem> GlobalGraph::slam() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return slam_;
+}
+
+std::shared_ptr<SlamSystem> GlobalGraph::slamFor(const PinholeCamera& camera) {
+  std::lock_guard<std::mutex> events(events_mutex_);
+  std::shared_ptr<SlamSystem> slam;
+  bool created = false;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    try {
+      slam = slamLocked(camera, &created);
+    } catch (const Error& e) {
+      throw Error(std::string("the map's camera differs from the server's: ") + e.what());
+    }
+  }
+  if (created) {
+    for (GraphListener* l : listeners_) l->onSlamCreated(slam);
+  }
+  return slam;
+}
+
+uint32_t GlobalGraph::epoch() const {
+  const std::shared_ptr<SlamSystem> slam = this->slam();
+  return slam ? mapEpoch(slam->map()) : config_.slam.first_epoch;
+}
+
+uint64_t GlobalGraph::generation() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return generation_;
+}
+
+size_t GlobalGraph::eraseKeyFrame(KeyFrameId culled, KeyFrameId heir) {
+  // Not waiting for a load: it may be waiting for the mapping thread this is
+  // called on, and the culled keyframe belongs to the map being replaced.
+  std::shared_lock<std::shared_mutex> structure(structure_mutex_, std::try_to_lock);
+  if (!structure) return 0;
+  planes_.eraseKeyFrame(culled);
+  grid_.eraseKeyFrame(culled);
+  return vos_->moveKeyFrame(culled, heir);
+}
+
+void GlobalGraph::updateVoBounds() {
+  const std::shared_ptr<SlamSystem> slam = this->slam();
+  if (!slam) return;
+  const std::optional<Bounds> b = keyframeBounds(slam->map());
+  if (!b) return;
+  const Eigen::Vector3d margin = Eigen::Vector3d::Constant(config_.vo_map_margin);
+  // The configured bounds are the limit; the map's extent narrows them.
+  vos_->setMapBounds((b->min - margin).cwiseMax(config_.vo.map_min),
+                     (b->max + margin).cwiseMin(config_.vo.map_max));
+}
+
+MapCounts GlobalGraph::save(const std::string& path) {
+  const auto start = std::chrono::steady_clock::now();
+  const std::string where = "map file '" + path + "'";
+  const std::shared_ptr<SlamSystem> slam = this->slam();
+  if (!slam) throw Error(where + ": nothing to save, no device has connected yet");
+  MapCounts counts;
+  MapFileWriter writer;
+  {
+    std::unique_lock<std::shared_mutex> frozen(structure_mutex_);
+    std::vector<uint8_t> slam_bytes;
+    {
+      auto lock = slam->map().readLock();
+      slam_bytes = encodeSlamMap(slam->map(), slam->camera());
+      counts.keyframes = static_cast<uint32_t>(slam->map().numKeyFrames());
+      counts.map_points = static_cast<uint32_t>(slam->map().numPoints());
+    }
+    writer.addSection(kSlamSection, std::move(slam_bytes));
+    StructureState state;
+    state.planes = planes_.save();
+    state.next_plane_id = planes_.nextId();
+    state.grid = grid_.save();
+    state.vos = vos_->snapshot();
+    counts.planes = static_cast<uint32_t>(state.planes.size());
+    counts.objects = static_cast<uint32_t>(state.vos.objects.size());
+    addStructureSections(&writer, state);
+  }
+  writer.write(path);  // names the path in its errors
+  std::error_code ec;
+  counts.bytes = static_cast<size_t>(std::filesystem::file_size(path, ec));
+  counts.milliseconds = msSince(start);
+  return counts;
+}
+
+MapCounts GlobalGraph::load(const std::string& path) {
+  const auto start = std::chrono::steady_clock::now();
+  const MapFileReader file = MapFileReader::open(path);
+  // Decode everything before anything changes.
+  std::shared_ptr<SlamSystem> slam = this->slam();
+  const PinholeCamera camera =
+      slam ? slam->camera() : decodeSlamCamera(file.reader(kSlamSection));
+  const ScaleInfo scale = slam ? slam->map().scale() : ScaleInfo::fromConfig(config_.slam.orb);
+  std::unique_ptr<Map> map = decodeSlamMap(file.reader(kSlamSection), camera, scale);
+  const StructureState state = readStructureSections(file);
+  MapCounts counts;
+  counts.keyframes = static_cast<uint32_t>(map->numKeyFrames());
+  counts.map_points = static_cast<uint32_t>(map->numPoints());
+  counts.planes = static_cast<uint32_t>(state.planes.size());
+  counts.objects = static_cast<uint32_t>(state.vos.objects.size());
+  counts.bytes = file.fileSize();
+  try {
+    std::unique_lock<std::shared_mutex> frozen(structure_mutex_);
+    // The VO store first: a database failure changes nothing.
+    vos_->replaceAll(state.vos);
+    if (!slam) slam = slamFor(camera);
+    slam->installMap(std::move(map));
+    planes_.load(state.planes, state.next_plane_id);
+    grid_.load(state.grid);
+    grid_.attachObjects(vos_->allObjects(), vos_->config().cell_size,
+                        vos_->config().attach_margin);
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++generation_;
+  } catch (const Error& e) {
+    throw Error("map file '" + path + "': " + e.what());
+  }
+  try {
+    updateVoBounds();
+  } catch (const Error&) {
+    // The configured bounds stay (the map's keyframes lie inside them anyway).
+  }
+  counts.milliseconds = msSince(start);
+  return counts;
+}
+
+void GlobalGraph::addListener(GraphListener* listener) {
+  std::lock_guard<std::mutex> events(events_mutex_);
+  listeners_.push_back(listener);
+  const std::shared_ptr<SlamSystem> slam = this->slam();
+  if (slam) listener->onSlamCreated(slam);
+  for (const DeviceInfo& d : devices_.devices()) listener->onDeviceAdded(d);
+}
+
+void GlobalGraph::removeListener(GraphListener* listener) {
+  std::lock_guard<std::mutex> events(events_mutex_);
+  listeners_.erase(std::remove(listeners_.begin(), listeners_.end(), listener), listeners_.end());
+}
+
+}  // namespace ecar

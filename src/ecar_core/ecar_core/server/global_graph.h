@@ -1,0 +1,190 @@
+// The edge server's global graph (DESIGN.md section 3): everything devices
+// share, in one coordinate system, and the only object the server's modules
+// share. The modules (slam/slam_system.h for tracking and local mapping,
+// server/plane_segmentation.h, server/grid_connection.h,
+// sync/local_graph_composer.h) work on it; per-upload data flows between them
+// as messages.
+//
+//   GlobalGraph graph(config);                        // opens the VO database
+//   DeviceConnectResult r = graph.connect("device_0", camera, "", 10, now);
+//   std::shared_ptr<SlamSystem> slam = graph.slam();  // created by the first camera
+//   MapCounts saved = graph.save("/tmp/corridor.ecarmap");
+//
+// What it holds, and the lock contract:
+// - devices (DeviceRegistry): its own mutex.
+// - the SLAM map (keyframes, map points; SlamSystem): the Map's shared_mutex
+//   (map.h); read it through the queries of slam/map_queries.h, which take the
+//   lock themselves.
+// - planes (PlaneMap), grid links (GridMap: keyframe-cell and object-cell) and
+//   virtual objects (VoStore): each thread-safe on its own.
+// - the structure lock (structureLock()): shared by every module while it reads
+//   or changes planes, grid links or VOs for one keyframe or upload, exclusive
+//   only while load() swaps a loaded map in, so that no module sees half of a
+//   load. Take it before any of the locks above, never while holding them.
+// - the map epoch (epoch()): moves on with every load; a result aligned in an
+//   older epoch refers to a replaced map and is dropped.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <shared_mutex>
+#include <string>
+#include <vector>
+
+#include "ecar_core/common/camera.h"
+#include "ecar_core/server/device_registry.h"
+#include "ecar_core/slam/map_queries.h"
+#include "ecar_core/slam/slam_system.h"
+#include "ecar_core/structure/grid_caster.h"
+#include "ecar_core/structure/grid_map.h"
+#include "ecar_core/structure/plane_map.h"
+#include "ecar_core/structure/vo_store.h"
+
+namespace ecar {
+
+struct GlobalGraphConfig {
+  /// SLAM options; slam.first_epoch is the map epoch before any load (a server
+  /// makes it differ between its starts).
+  SlamConfig slam;
+  PlaneConfig planes;
+  GridConfig grid;
+  /// VO store; its cell_size is taken from grid.cell_size.
+  VoStoreConfig vo;
+  /// m: the VO map bounds are the keyframe centres' bounding box grown by this
+  /// (within vo.map_min / vo.map_max).
+  double vo_map_margin = 10.0;
+  /// A device's intrinsics may differ from the SLAM camera's by this fraction
+  /// (fx, fy, cx, cy) and its distortion coefficients by this much.
+  double camera_tolerance = 0.005;
+  DeviceRegistryConfig devices;
+
+  /// Throws ecar::Error naming the first invalid key.
+  void validate() const;
+};
+
+/// Receives device and SLAM events. Calls are serialised (one at a time) and
+/// made without the graph's locks, so handlers may query the graph; they must
+/// not connect or remove devices.
+class GraphListener {
+ public:
+  virtual ~GraphListener() = default;
+  /// The SLAM system was created (before the first device is added).
+  virtual void onSlamCreated(const std::shared_ptr<SlamSystem>& /*slam*/) {}
+  virtual void onDeviceAdded(const DeviceInfo& /*device*/) {}
+  virtual void onDeviceRemoved(const DeviceInfo& /*device*/) {}
+};
+
+/// What a map file holds (or held).
+struct MapCounts {
+  uint32_t keyframes = 0;
+  uint32_t map_points = 0;
+  uint32_t planes = 0;
+  uint32_t objects = 0;  ///< tombstones included
+  double milliseconds = 0.0;
+  size_t bytes = 0;  ///< size of the file
+};
+
+class GlobalGraph {
+ public:
+  /// Validates `config` and opens the VO store (throws ecar::Error naming the
+  /// key or the database file); the stored objects are attached to the grid.
+  explicit GlobalGraph(const GlobalGraphConfig& config);
+  GlobalGraph(const GlobalGraph&) = delete;
+  GlobalGraph& operator=(const GlobalGraph&) = delete;
+
+  const GlobalGraphConfig& config() const { return config_; }
+
+  // ---- devices
+  /// Registers (or re-registers) a device. Refused: an invalid name or sync
+  /// mode (DeviceRegistry::refusal), a camera unlike the SLAM's. The first
+  /// accepted device's camera creates the SLAM system.
+  DeviceConnectResult connect(const std::string& name, const PinholeCamera& camera,
+                              const std::string& sync_mode, uint32_t keyframe_queue, double now);
+  bool disconnect(const std::string& name);
+  /// Drops the devices silent for longer than the timeout; returns their names.
+  std::vector<std::string> removeSilent(double now);
+  /// Marks a device as heard from; false when it is not connected.
+  bool touch(const std::string& name, double now) { return devices_.touch(name, now); }
+  const DeviceRegistry& devices() const { return devices_; }
+
+  // ---- the SLAM map
+  /// Null until the first device connected (or a map was loaded).
+  std::shared_ptr<SlamSystem> slam() const;
+  /// The SLAM system, created with `camera` when there is none yet. Throws
+  /// ecar::Error when it exists with another camera.
+  std::shared_ptr<SlamSystem> slamFor(const PinholeCamera& camera);
+  /// The map epoch: first_epoch until a map is loaded, then past both maps'.
+  uint32_t epoch() const;
+
+  // ---- structure
+  PlaneMap& planes() { return planes_; }
+  const PlaneMap& planes() const { return planes_; }
+  GridMap& grid() { return grid_; }
+  const GridMap& grid() const { return grid_; }
+  VoStore& vos() { return *vos_; }
+  const VoStore& vos() const { return *vos_; }
+  /// Shared while reading or changing planes, grid links or VOs for one
+  /// keyframe or upload; load() takes it exclusively.
+  std::shared_lock<std::shared_mutex> structureLock() const {
+    return std::shared_lock<std::shared_mutex>(structure_mutex_);
+  }
+  /// Increments with every load.
+  uint64_t generation() const;
+
+  /// A culled keyframe's plane and cell links go; the objects hanging on it
+  /// (keyframe attachment) move to its heir, in SQLite first. Returns how many
+  /// moved; throws ecar::Error when the database write fails. Does nothing
+  /// while a load runs (the keyframe belongs to the map being replaced).
+  size_t eraseKeyFrame(KeyFrameId culled, KeyFrameId heir);
+  /// The VO map bounds: the keyframe centres' bounding box grown by
+  /// vo_map_margin, within the configured bounds (unchanged without a map).
+  void updateVoBounds();
+
+  // ---- saving and loading
+  /// Writes the whole map (keyframes, points, planes, grid links, VOs) to
+  /// `path` atomically. A consistent copy: the structure is frozen while the
+  /// SLAM map is encoded under its read lock; the file is written after the
+  /// locks are released. Throws ecar::Error naming the path and the problem.
+  MapCounts save(const std::string& path);
+  /// Replaces the whole map by the one in `path`. Every section is read,
+  /// CRC-checked and decoded first (nothing changes when one fails); then,
+  /// with the structure frozen: the VO store and its database are replaced (one
+  /// transaction), the SLAM map is installed (running alignments finish first,
+  /// new ones wait; every tracker relocalises; the epoch moves on), planes and
+  /// grid links are swapped and the objects re-attached to the grid. Before any
+  /// device connected, the SLAM system is created with the map's camera;
+  /// afterwards the map must have the devices' camera. Throws ecar::Error
+  /// naming the path, the section and the field.
+  MapCounts load(const std::string& path);
+
+  /// Adds a listener and replays the current state to it (onSlamCreated,
+  /// onDeviceAdded for each device). It must outlive its registration.
+  void addListener(GraphListener* listener);
+  void removeListener(GraphListener* listener);
+
+ private:
+  /// Why `camera` cannot join the SLAM's (empty when it can). mutex_ held.
+  std::string cameraMismatch(const PinholeCamera& camera) const;
+  /// The SLAM system, created with `camera` when missing (sets *created).
+  /// mutex_ held; throws on a camera mismatch.
+  std::shared_ptr<SlamSystem> slamLocked(const PinholeCamera& camera, bool* created);
+
+  const GlobalGraphConfig config_;
+  DeviceRegistry devices_;
+  PlaneMap planes_;
+  GridMap grid_;
+  std::unique_ptr<VoStore> vos_;
+  mutable std::shared_mutex structure_mutex_;
+
+  mutable std::mutex mutex_;  // guards slam_ and generation_
+  std::shared_ptr<SlamSystem> slam_;
+  uint64_t generation_ = 0;
+
+  std::mutex events_mutex_;  // serialises event delivery; guards listeners_
+  std::vector<GraphListener*> listeners_;
+};
+
+}  // namespace ecar

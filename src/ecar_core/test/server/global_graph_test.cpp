@@ -1,0 +1,347 @@
+// The global graph: devices (connect, camera refusal, reconnect, timeout,
+// listeners), the map epoch, culled keyframes, VO map bounds, and saving and
+// loading the whole map: a fresh server resumes it (creating its SLAM system
+// from the file), bad files and paths fail naming the path and change nothing,
+// and what was aligned or segmented in the replaced map is dropped.
+#include "ecar_core/server/global_graph.h"
+
+#include <fstream>
+#include <iterator>
+
+#include <gtest/gtest.h>
+
+#include "ecar_core/common/error.h"
+#include "ecar_core/server/grid_connection.h"
+#include "ecar_core/server/plane_segmentation.h"
+#include "ecar_core/structure/plane_segmenter.h"
+#include "server/structure_fixtures.h"
+#include "test_support.h"
+
+namespace ecar {
+namespace {
+
+using testing::camera640;
+using testing::contains;
+using testing::floorKeyFrame;
+using testing::lookingAlongX;
+using testing::TempDir;
+
+PinholeCamera camera(double fx = 525.0, int width = 640) {
+  CameraParams p;
+  p.fx = p.fy = fx;
+  p.width = width;
+  return PinholeCamera(p);
+}
+
+GlobalGraphConfig configWith(const std::string& database, uint32_t first_epoch = 1) {
+  GlobalGraphConfig c;
+  c.vo.database_path = database;
+  c.slam.first_epoch = first_epoch;
+  return c;
+}
+
+struct Recorder : GraphListener {
+  int slams = 0;
+  std::vector<std::string> added, removed;
+  void onSlamCreated(const std::shared_ptr<SlamSystem>&) override { ++slams; }
+  void onDeviceAdded(const DeviceInfo& d) override { added.push_back(d.name); }
+  void onDeviceRemoved(const DeviceInfo& d) override { removed.push_back(d.name); }
+};
+
+TEST(GlobalGraphTest, FirstCameraCreatesTheSlamAndOthersMustMatch) {
+  GlobalGraph graph(configWith(":memory:", 1000));
+  Recorder rec;
+  graph.addListener(&rec);
+  EXPECT_EQ(graph.slam(), nullptr);
+  EXPECT_EQ(graph.epoch(), 1000u);
+  const auto a = graph.connect("device_0", camera(), "", 0, 0.0);
+  ASSERT_TRUE(a.accepted) << a.message;
+  ASSERT_NE(graph.slam(), nullptr);
+  EXPECT_EQ(graph.epoch(), 1000u);  // the SLAM map starts at the server's first epoch
+  EXPECT_EQ(a.device.keyframe_queue, 10u);
+  EXPECT_EQ(a.device.mode, SyncMode::kEcar);
+  const auto b = graph.connect("device_1", camera(600.0), "", 5, 0.0);
+  EXPECT_FALSE(b.accepted);
+  EXPECT_NE(b.message.find("intrinsics"), std::string::npos) << b.message;
+  const auto c = graph.connect("device_1", camera(525.0, 320), "", 5, 0.0);
+  EXPECT_FALSE(c.accepted);
+  EXPECT_NE(c.message.find("320x480"), std::string::npos) << c.message;
+  const auto d = graph.connect("device_1", camera(525.5), "edgeslam", 5, 0.0);
+  ASSERT_TRUE(d.accepted) << d.message;
+  EXPECT_EQ(d.device.mode, SyncMode::kEdgeSlam);
+  EXPECT_EQ(d.device.keyframe_queue, 5u);
+  EXPECT_NE(d.device.id, a.device.id);
+  EXPECT_EQ(graph.devices().name(d.device.id), "device_1");
+  EXPECT_EQ(rec.slams, 1);
+  EXPECT_EQ(rec.added, (std::vector<std::string>{"device_0", "device_1"}));
+  graph.removeListener(&rec);
+}
+
+TEST(GlobalGraphTest, BadNamesAndModesAreRefused) {
+  GlobalGraph graph(configWith(":memory:"));
+  EXPECT_FALSE(graph.connect("", camera(), "", 0, 0.0).accepted);
+  EXPECT_FALSE(graph.connect("0dev", camera(), "", 0, 0.0).accepted);
+  EXPECT_FALSE(graph.connect("dev/ice", camera(), "", 0, 0.0).accepted);
+  const auto r = graph.connect("device_0", camera(), "full", 0, 0.0);
+  EXPECT_FALSE(r.accepted);
+  EXPECT_NE(r.message.find("sync_mode"), std::string::npos) << r.message;
+  EXPECT_EQ(graph.slam(), nullptr);  // no SLAM made for a refused device
+}
+
+TEST(GlobalGraphTest, ReconnectKeepsTheIdAndTakesTheNewQueue) {
+  GlobalGraph graph(configWith(":memory:"));
+  Recorder rec;
+  graph.addListener(&rec);
+  const auto a = graph.connect("device_0", camera(), "", 0, 0.0);
+  const auto b = graph.connect("device_0", camera(), "", 3, 1.0);
+  EXPECT_TRUE(b.reconnected);
+  EXPECT_EQ(b.device.id, a.device.id);
+  EXPECT_EQ(graph.devices().device("device_0")->keyframe_queue, 3u);
+  EXPECT_EQ(rec.added.size(), 1u);  // no second "added"
+  graph.removeListener(&rec);
+}
+
+TEST(GlobalGraphTest, SilentDevicesAreDroppedAndMayComeBack) {
+  GlobalGraphConfig config = configWith(":memory:");
+  config.devices.device_timeout = 10.0;
+  GlobalGraph graph(config);
+  Recorder rec;
+  graph.addListener(&rec);
+  const auto a = graph.connect("device_0", camera(), "", 0, 0.0);
+  graph.connect("device_1", camera(), "", 0, 0.0);
+  EXPECT_TRUE(graph.touch("device_1", 8.0));
+  EXPECT_FALSE(graph.touch("device_7", 8.0));
+  EXPECT_TRUE(graph.removeSilent(9.0).empty());
+  EXPECT_EQ(graph.removeSilent(12.0), (std::vector<std::string>{"device_0"}));
+  EXPECT_EQ(rec.removed, (std::vector<std::string>{"device_0"}));
+  EXPECT_FALSE(graph.devices().device("device_0").has_value());
+  EXPECT_FALSE(graph.touch("device_0", 12.0));
+  const auto b = graph.connect("device_0", camera(), "", 0, 13.0);
+  EXPECT_TRUE(b.accepted);
+  EXPECT_FALSE(b.reconnected);
+  EXPECT_EQ(b.device.id, a.device.id);
+  EXPECT_TRUE(graph.disconnect("device_1"));
+  EXPECT_FALSE(graph.disconnect("device_1"));
+  EXPECT_EQ(graph.devices().devices().size(), 1u);
+  graph.removeListener(&rec);
+}
+
+TEST(GlobalGraphTest, LateListenersGetTheStateReplayed) {
+  GlobalGraph graph(configWith(":memory:"));
+  graph.connect("device_0", camera(), "", 0, 0.0);
+  Recorder rec;
+  graph.addListener(&rec);
+  EXPECT_EQ(rec.slams, 1);
+  EXPECT_EQ(rec.added, (std::vector<std::string>{"device_0"}));
+  graph.removeListener(&rec);
+}
+
+TEST(GlobalGraphTest, InvalidConfigAndAnUnopenableStoreNameTheProblem) {
+  GlobalGraphConfig config = configWith(":memory:");
+  config.vo_map_margin = -1.0;
+  try {
+    GlobalGraph graph(config);
+    ADD_FAILURE() << "accepted";
+  } catch (const Error& e) {
+    EXPECT_TRUE(contains(e.what(), "vo.map_margin")) << e.what();
+  }
+  try {
+    GlobalGraph graph(configWith("/nonexistent_dir_ecar/vo.sqlite"));
+    ADD_FAILURE() << "opened";
+  } catch (const Error& e) {
+    EXPECT_TRUE(contains(e.what(), "nonexistent_dir_ecar")) << e.what();
+  }
+}
+
+VirtualObject lineAt(double x, double y = 0.2) {
+  VirtualObject vo;
+  vo.start = Eigen::Vector3d(x, y, 0.0);
+  vo.end = Eigen::Vector3d(x + 0.3, y, 0.0);
+  vo.width = 0.05f;
+  return vo;
+}
+
+VoRequest registration(const VirtualObject& vo, const std::string& device = "device_0") {
+  VoRequest r;
+  r.device = device;
+  r.object = vo;
+  return r;
+}
+
+// Planes of keyframe 1 (a floor seen from x = 0) merged into the graph, as
+// plane segmentation would, and what it reports.
+KeyFramePlanes addFloor(GlobalGraph* graph, KeyFrameId id, const SE3& T_w_c) {
+  const PlaneKeyFrameInput input = floorKeyFrame(id, T_w_c);
+  KeyFramePlanes out;
+  out.keyframe = id;
+  out.T_w_c = T_w_c;
+  out.map_epoch = graph->epoch();
+  out.update = graph->planes().integrate(input, PlaneSegmenter(PlaneConfig()).segment(input));
+  out.planes = out.update.keyframe_planes;
+  return out;
+}
+
+// A server with a floor plane, its keyframe's cells and two objects (one moved).
+void fill(GlobalGraph* graph) {
+  graph->slamFor(camera640());
+  GridConnection grid(graph, GridConnectionConfig());
+  const KeyFramePlanes k = addFloor(graph, KeyFrameId(1), lookingAlongX(0.0));
+  ASSERT_EQ(k.update.created.size(), 1u);
+  ASSERT_GT(grid.linkKeyFrame(k), 0u);
+  const VoOutcome a = grid.apply(registration(lineAt(2.0)));
+  ASSERT_TRUE(a.accepted) << a.reason;
+  VoRequest move = registration(lineAt(2.5), "device_1");
+  move.type = VoRequestType::kManipulate;
+  move.object_id = a.id;
+  move.base_version = 1;
+  ASSERT_TRUE(grid.apply(move).accepted);
+  ASSERT_TRUE(grid.apply(registration(lineAt(4.0))).accepted);
+}
+
+TEST(GlobalGraphTest, AFreshServerResumesTheSavedMap) {
+  const TempDir dir;
+  GlobalGraph first(configWith(dir.file("first.sqlite"), 100));
+  fill(&first);
+  const MapCounts saved = first.save(dir.file("map.ecarmap"));
+  EXPECT_EQ(saved.planes, 1u);
+  EXPECT_EQ(saved.objects, 2u);
+  EXPECT_EQ(saved.keyframes, 0u);
+  EXPECT_GT(saved.bytes, 0u);
+
+  GlobalGraph second(configWith(dir.file("second.sqlite"), 5000));
+  ASSERT_FALSE(second.slam());
+  const uint32_t epoch = second.epoch();
+  const uint64_t generation = second.generation();
+  const MapCounts loaded = second.load(dir.file("map.ecarmap"));
+  EXPECT_EQ(loaded.planes, 1u);
+  EXPECT_EQ(loaded.objects, 2u);
+  ASSERT_TRUE(second.slam());  // created with the file's camera
+  EXPECT_EQ(second.slam()->camera().params().fx, 525.0);
+  EXPECT_NE(second.epoch(), epoch);
+  EXPECT_EQ(second.generation(), generation + 1);
+
+  const auto planes1 = first.planes().planes();
+  const auto planes2 = second.planes().planes();
+  ASSERT_EQ(planes2.size(), 1u);
+  EXPECT_EQ(planes2[0].id, planes1[0].id);
+  EXPECT_EQ(planes2[0].version, planes1[0].version);
+  EXPECT_EQ(planes2[0].normal, planes1[0].normal);
+  EXPECT_EQ(planes2[0].boundary, planes1[0].boundary);
+  EXPECT_EQ(second.planes().nextId(), first.planes().nextId());
+  EXPECT_EQ(second.grid().save(), first.grid().save());
+  const auto vos1 = first.vos().allObjects();
+  const auto vos2 = second.vos().allObjects();
+  ASSERT_EQ(vos2.size(), 2u);
+  for (size_t i = 0; i < vos1.size(); ++i) {
+    EXPECT_EQ(vos2[i].id, vos1[i].id);
+    EXPECT_EQ(vos2[i].version, vos1[i].version);
+    EXPECT_EQ(vos2[i].position, vos1[i].position);
+    // The objects are attached to their cells again.
+    EXPECT_EQ(second.grid().cellsOfObject(vos2[i].id), first.grid().cellsOfObject(vos1[i].id));
+  }
+  // The planes are cast again: a frame aligned in the loaded map sees the floor.
+  GridConnection grid(&second, GridConnectionConfig());
+  TrackResult frame;
+  frame.state = TrackingState::kOk;
+  frame.T_w_c = lookingAlongX(0.0);
+  frame.map_epoch = second.epoch();
+  const VisibleStructure now = grid.visible(frame);
+  EXPECT_FALSE(now.stale);
+  EXPECT_EQ(now.planes.size(), 1u);
+  EXPECT_EQ(now.objects.size(), 2u);
+  // A frame aligned before the load is stale: nothing from the old map is sent.
+  frame.map_epoch = epoch;
+  const VisibleStructure old = grid.visible(frame);
+  EXPECT_TRUE(old.stale);
+  EXPECT_TRUE(old.planes.empty());
+  // A keyframe segmented before the load is dropped; one after is linked.
+  KeyFramePlanes before = addFloor(&second, KeyFrameId(2), lookingAlongX(1.0));
+  before.map_epoch = epoch;
+  EXPECT_EQ(grid.linkKeyFrame(before), 0u);
+  EXPECT_EQ(second.grid().numKeyFrames(), 1u);
+  before.map_epoch = second.epoch();
+  EXPECT_GT(grid.linkKeyFrame(before), 0u);
+  EXPECT_EQ(second.grid().numKeyFrames(), 2u);
+}
+
+TEST(GlobalGraphTest, BadFilesAndPathsFailNamingThePathAndChangeNothing) {
+  const TempDir dir;
+  GlobalGraph server(configWith(dir.file("a.sqlite"), 100));
+  EXPECT_TRUE(contains(testing::errorOf([&] { server.save(dir.file("m.ecarmap")); }),
+                       "no device has connected"));
+  fill(&server);
+  const std::string good = dir.file("good.ecarmap");
+  server.save(good);
+  const std::string unwritable = dir.file("no_such_dir/x.ecarmap");
+  EXPECT_TRUE(contains(testing::errorOf([&] { server.save(unwritable); }), unwritable));
+
+  // The server now differs from the file: one more object.
+  ASSERT_TRUE(server.vos().registerObject(lineAt(5.0)).accepted);
+  const uint32_t epoch = server.epoch();
+  const uint64_t generation = server.generation();
+
+  std::ifstream in(good, std::ios::binary);
+  std::vector<char> bytes((std::istreambuf_iterator<char>(in)), {});
+  bytes[bytes.size() - 30] ^= 0x5a;  // inside the last section, "vos"
+  const std::string corrupt = dir.file("corrupt.ecarmap");
+  std::ofstream(corrupt, std::ios::binary).write(bytes.data(), bytes.size());
+  std::string error = testing::errorOf([&] { server.load(corrupt); });
+  EXPECT_TRUE(contains(error, corrupt) && contains(error, "section 'vos'")) << error;
+  const std::string missing = dir.file("missing.ecarmap");
+  error = testing::errorOf([&] { server.load(missing); });
+  EXPECT_TRUE(contains(error, missing)) << error;
+
+  EXPECT_EQ(server.vos().numObjects(), 3u);
+  EXPECT_EQ(server.epoch(), epoch);
+  EXPECT_EQ(server.generation(), generation);
+
+  // A map made with another camera is refused by a server that has one.
+  CameraParams other = camera640().params();
+  other.fx = 400.0;
+  GlobalGraph foreign(configWith(dir.file("b.sqlite"), 100));
+  foreign.slamFor(PinholeCamera(other));
+  error = testing::errorOf([&] { foreign.load(good); });
+  EXPECT_TRUE(contains(error, "camera.fx")) << error;
+  EXPECT_EQ(foreign.vos().numObjects(), 0u);
+}
+
+TEST(GlobalGraphTest, CulledKeyFramesLoseTheirLinksAndHandTheirObjectsOn) {
+  GlobalGraphConfig config = configWith(":memory:");
+  config.vo.attach_mode = VoAttachMode::kKeyFrame;
+  GlobalGraph graph(config);
+  graph.slamFor(camera640());
+  GridConnection grid(&graph, GridConnectionConfig());
+  const KeyFramePlanes k = addFloor(&graph, KeyFrameId(1), lookingAlongX(0.0));
+  ASSERT_GT(grid.linkKeyFrame(k), 0u);
+  ASSERT_TRUE(graph.vos().registerObject(lineAt(1.0), KeyFrameId(1)).accepted);
+  EXPECT_EQ(graph.eraseKeyFrame(KeyFrameId(1), KeyFrameId(4)), 1u);
+  EXPECT_TRUE(graph.grid().cellsOfKeyFrame(KeyFrameId(1)).empty());
+  EXPECT_TRUE(graph.planes().planesOfKeyFrame(KeyFrameId(1)).empty());
+  EXPECT_EQ(graph.vos().objectsOfKeyFrames({KeyFrameId(4)}).size(), 1u);
+}
+
+TEST(GlobalGraphTest, VoBoundsFollowTheKeyFrames) {
+  GlobalGraphConfig config = configWith(":memory:");
+  config.vo_map_margin = 2.0;
+  GlobalGraph graph(config);
+  graph.updateVoBounds();  // no map yet: nothing changes
+  ASSERT_TRUE(graph.vos().registerObject(lineAt(50.0)).accepted);
+  const std::shared_ptr<SlamSystem> slam = graph.slamFor(camera640());
+  {
+    Map& map = slam->map();
+    auto lock = map.writeLock();
+    for (double x : {0.0, 10.0}) {
+      KeyFrame kf;
+      kf.T_c_w = lookingAlongX(x).inverse();
+      map.addKeyFrame(std::move(kf));
+    }
+  }
+  graph.updateVoBounds();
+  EXPECT_TRUE(graph.vos().registerObject(lineAt(11.0)).accepted);
+  const VoOutcome out = graph.vos().registerObject(lineAt(13.0));
+  EXPECT_FALSE(out.accepted);
+  EXPECT_EQ(out.code, VoReject::kOutOfMap);
+}
+
+}  // namespace
+}  // namespace ecar
