@@ -5,7 +5,6 @@
 #include <cstdio>
 
 #include <cv_bridge/cv_bridge.h>
-#include <sensor_msgs/image_encodings.h>
 #include <std_msgs/UInt32.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -16,9 +15,12 @@
 #include <ecar_msgs/RoundTripMetrics.h>
 #include <ecar_msgs/Upload.h>
 
+#include "ecar_bridge/camera.h"
+#include "ecar_bridge/device_messages.h"
+#include "ecar_bridge/geometry.h"
+#include "ecar_bridge/local_graph.h"
+#include "ecar_bridge/objects.h"
 #include "ecar_core/common/error.h"
-#include "ecar_device/conversions.h"
-#include "ecar_sim/conversions.h"
 
 namespace ecar_device {
 namespace {
@@ -30,11 +32,13 @@ const char* stateName(ecar::TrackingState s) { return ecar::toString(s); }
 
 }  // namespace
 
-Device::Device(const ros::NodeHandle& nh, const DeviceConfig& config)
+Device::Device(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const DeviceConfig& config)
     : config_(config),
       nh_(nh),
+      pnh_(pnh),
       camera_frame_(config.device_id + "/camera"),
       objects_(config.objects, config.device_id),
+      image_transport_(nh),
       connect_nh_(nh) {
   config_.validate();
   // Conventional names until the server names others on connection: the
@@ -54,13 +58,16 @@ Device::Device(const ros::NodeHandle& nh, const DeviceConfig& config)
   metrics_pub_ = nh_.advertise<ecar_msgs::RoundTripMetrics>("metrics", 30);
   global_metrics_pub_ =
       nh_.advertise<ecar_msgs::RoundTripMetrics>(config_.global_metrics_topic, 30);
-  ar_view_pub_ = nh_.advertise<sensor_msgs::Image>("ar_view", 1);
+  ar_view_pub_ = image_transport_.advertise("ar_view", 1);
   frame_done_pub_ = nh_.advertise<std_msgs::UInt32>("frame_done", 10);
   info_sub_ = nh_.subscribe("camera/camera_info", 1, &Device::onCameraInfo, this);
   imu_sub_ = nh_.subscribe("imu", 50, &Device::onImu, this);
   odometry_sub_ = nh_.subscribe("odometry", 10, &Device::onOdometry, this);
-  // A short queue: when tracking falls behind the camera, old frames go.
-  image_sub_ = nh_.subscribe("camera/image_raw", 2, &Device::onImage, this);
+  // A short queue: when tracking falls behind the camera, old frames go. The
+  // transport is image_transport's (~image_transport: raw, compressed, ...).
+  image_sub_ = image_transport_.subscribe("camera/image_raw", 2, &Device::onImage, this,
+                                          image_transport::TransportHints(
+                                              config_.image_transport, ros::TransportHints(), pnh_));
   if (config_.pace_in_flight > 0) {
     pace_timer_ = nh_.createSteadyTimer(ros::WallDuration(0.01),
                                         [this](const ros::SteadyTimerEvent&) { onPaceTimer(); });
@@ -92,7 +99,7 @@ void Device::onCameraInfo(const sensor_msgs::CameraInfoConstPtr& msg) {
     return;
   }
   try {
-    const ecar::PinholeCamera camera = ecar_sim::fromCameraInfo(*msg);
+    const ecar::PinholeCamera camera = ecar_bridge::fromMsg(*msg);
     if (has_camera_info_) {
       ROS_WARN("%s: camera_info changed: local map dropped, reconnecting",
                config_.device_id.c_str());
@@ -110,25 +117,24 @@ void Device::onCameraInfo(const sensor_msgs::CameraInfoConstPtr& msg) {
 }
 
 void Device::onImu(const sensor_msgs::ImuConstPtr& msg) {
-  const Eigen::Vector3d g = ecar_sim::fromVector3(msg->linear_acceleration);
-  std::lock_guard<std::mutex> lock(mutex_);
-  if (!g.allFinite()) {
-    ROS_WARN_THROTTLE(kWarnPeriod, "%s: imu dropped: non-finite linear_acceleration",
-                      config_.device_id.c_str());
-    return;
+  try {
+    const ecar::ImuSample sample = ecar_bridge::fromMsg(*msg);
+    std::lock_guard<std::mutex> lock(mutex_);
+    gravity_c_ = sample.acc_c;
+  } catch (const ecar::Error& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: imu dropped: %s", config_.device_id.c_str(), e.what());
   }
-  gravity_c_ = g;
 }
 
 void Device::onOdometry(const geometry_msgs::PoseStampedConstPtr& msg) {
   try {
-    const ecar::SE3 T_o_c = ecar_sim::fromPose(msg->pose);
+    const ecar::SE3 T_o_c = ecar_bridge::fromMsg(msg->pose, "odometry");
     std::lock_guard<std::mutex> lock(mutex_);
     odometry_.emplace_back(msg->header.stamp, T_o_c);
     if (odometry_.size() > kOdometryKept) odometry_.pop_front();
     odometry_seen_ = true;
     if (held_upload_ && held_upload_->header.stamp == msg->header.stamp) {
-      held_upload_->odometry = ecar_sim::toPose(T_o_c);
+      held_upload_->odometry = ecar_bridge::toMsg(T_o_c);
       held_upload_->has_odometry = true;
       publishHeldUpload();
     }
@@ -148,16 +154,14 @@ void Device::onImage(const sensor_msgs::ImageConstPtr& msg) {
     frameDone(seq);
     return;
   }
-  cv_bridge::CvImageConstPtr cv;
+  cv::Mat gray;
   try {
-    cv = cv_bridge::toCvShare(msg, sensor_msgs::image_encodings::MONO8);
-  } catch (const cv_bridge::Exception& e) {
-    ROS_WARN_THROTTLE(kWarnPeriod, "%s: image dropped: encoding \"%s\": %s",
-                      config_.device_id.c_str(), msg->encoding.c_str(), e.what());
+    gray = ecar_bridge::grayOf(msg);
+  } catch (const ecar::Error& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: image dropped: %s", config_.device_id.c_str(), e.what());
     frameDone(seq);
     return;
   }
-  const cv::Mat& gray = cv->image;
   if (gray.cols != static_cast<int>(camera_info_.width) ||
       gray.rows != static_cast<int>(camera_info_.height)) {
     ROS_WARN_THROTTLE(kWarnPeriod, "%s: image dropped: size %dx%d, camera_info says %ux%u",
@@ -200,7 +204,7 @@ void Device::onImage(const sensor_msgs::ImageConstPtr& msg) {
 }
 
 void Device::upload(const cv::Mat& gray, const sensor_msgs::Image& image) {
-  UploadContent c;
+  ecar_bridge::UploadContent c;
   c.device_id = config_.device_id;
   c.camera_frame = camera_frame_;
   c.frame_index = image.header.seq;
@@ -233,7 +237,7 @@ void Device::upload(const cv::Mat& gray, const sensor_msgs::Image& image) {
   }
   p.sent = ros::Time::now();
   pending_.push_back(std::move(p));
-  held_upload_ = toUpload(c);
+  held_upload_ = ecar_bridge::toMsg(c);
   // A device with odometry whose pose for this stamp has not arrived yet
   // (published after the image) holds the upload until it comes.
   if (c.T_o_c || !odometry_seen_) publishHeldUpload();
@@ -246,7 +250,7 @@ void Device::publishHeldUpload() {
   for (auto it = pending_.rbegin(); it != pending_.rend(); ++it) {
     if (it->frame_index != msg.frame_index) continue;
     it->sent = msg.sent;
-    it->bytes_up = wireBytes(msg);
+    it->bytes_up = ecar_bridge::wireBytes(msg);
     break;
   }
   upload_pub_.publish(msg);
@@ -256,10 +260,10 @@ void Device::publishHeldUpload() {
 
 void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
                            const ecar::DeviceTrackResult& r, bool uploaded) {
-  device_frame_pub_.publish(toDeviceFrame(config_.device_id, image.header.stamp, config_.map_frame,
-                                          r, static_cast<uint32_t>(tracker_->numKeyFrames()),
-                                          static_cast<uint32_t>(tracker_->numPoints()), uploaded,
-                                          objects_.objects()));
+  device_frame_pub_.publish(ecar_bridge::toMsg(
+      config_.device_id, image.header.stamp, config_.map_frame, r,
+      static_cast<uint32_t>(tracker_->numKeyFrames()),
+      static_cast<uint32_t>(tracker_->numPoints()), uploaded, objects_.objects()));
   std_msgs::Header header;
   header.stamp = image.header.stamp;
   header.frame_id = config_.map_frame;
@@ -272,20 +276,30 @@ void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
   if (r.state == ecar::TrackingState::kOk) {
     geometry_msgs::PoseStamped pose;
     pose.header = header;
-    pose.pose = ecar_sim::toPose(r.T_w_c);
+    pose.pose = ecar_bridge::toMsg(r.T_w_c);
     pose_pub_.publish(pose);
     if (config_.publish_tf)
-      tf_.sendTransform(ecar_sim::toTransform(r.T_w_c, header, camera_frame_));
+      tf_.sendTransform(ecar_bridge::toTransformMsg(r.T_w_c, header, camera_frame_));
   }
   if (ar_view_pub_.getNumSubscribers() == 0) return;
   cv::cvtColor(gray, ar_image_, cv::COLOR_GRAY2BGR);
-  for (const cv::Point2f& p : r.tracked_pixels) {
-    cv::circle(ar_image_, p, 3, cv::Scalar(0, 255, 0), 1, cv::LINE_AA);
+  if (config_.ar_view.draw_points) {
+    for (const cv::Point2f& p : r.tracked_pixels) {
+      cv::circle(ar_image_, p, 3, cv::Scalar(0, 255, 0), 1, cv::LINE_AA);
+    }
   }
   // VOs at the pose touches use (this frame's when tracked), unless it is stale.
-  if (T_w_c_ && (image.header.stamp - pose_stamp_).toSec() <= config_.touch_pose_timeout) {
+  if (config_.ar_view.draw_objects && T_w_c_ &&
+      (image.header.stamp - pose_stamp_).toSec() <= config_.touch_pose_timeout) {
     drawObjects(*T_w_c_);
   }
+  if (config_.ar_view.draw_status) drawStatus(r);
+  std_msgs::Header view_header = image.header;
+  view_header.frame_id = camera_frame_;
+  ar_view_pub_.publish(cv_bridge::CvImage(view_header, "bgr8", ar_image_).toImageMsg());
+}
+
+void Device::drawStatus(const ecar::DeviceTrackResult& r) {
   char status[200];
   std::snprintf(status, sizeof(status),
                 "%s  frame %u  %s  %d pts  %zu kf  %zu map pts  %zu VOs  %.1f ms%s",
@@ -296,9 +310,6 @@ void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
   cv::putText(ar_image_, status, cv::Point(6, 16), cv::FONT_HERSHEY_SIMPLEX, 0.45,
               r.state == ecar::TrackingState::kOk ? cv::Scalar(0, 255, 0) : cv::Scalar(0, 0, 255),
               1, cv::LINE_AA);
-  std_msgs::Header view_header = image.header;
-  view_header.frame_id = camera_frame_;
-  ar_view_pub_.publish(cv_bridge::CvImage(view_header, "bgr8", ar_image_).toImageMsg());
 }
 
 // ---------------------------------------------------------------- local graphs
@@ -313,24 +324,21 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
     return;
   }
   if (!tracker_) return;
-  const bool ok_status =
-      msg->status == ecar_msgs::LocalGraph::OK || msg->status == ecar_msgs::LocalGraph::RELOCALISED;
-  const bool edgeslam = msg->sync_mode == ecar_msgs::LocalGraph::SYNC_EDGESLAM;
-  ecar::LocalGraphInput graph;
-  ecar::FullLocalMap full;
-  if (ok_status) {
-    try {
-      if (edgeslam) {
-        full = fromFullLocalGraph(*msg);
-      } else {
-        graph = fromLocalGraph(*msg);
-      }
-    } catch (const ecar::Error& e) {
-      ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph for frame %u dropped: %s", id,
-                        msg->frame_index, e.what());
-      return;
-    }
+  ecar::LocalGraph graph;
+  std::vector<std::string> skipped;
+  try {
+    graph = ecar_bridge::fromMsg(*msg, &skipped);
+  } catch (const ecar::Error& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph for frame %u dropped: %s", id,
+                      msg->frame_index, e.what());
+    return;
   }
+  for (const std::string& why : skipped) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph of frame %u: skipped %s", id,
+                      msg->frame_index, why.c_str());
+  }
+  const bool ok_status = ecar::tracked(graph.status);
+  const bool edgeslam = graph.mode == ecar::SyncMode::kEdgeSlam;
   auto it = std::find_if(pending_.begin(), pending_.end(),
                          [&](const Pending& p) { return p.frame_index == msg->frame_index; });
   if (it == pending_.end()) {
@@ -341,27 +349,29 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
   if (!has_epoch_ || msg->map_epoch != epoch_) {
     changeEpoch(msg->map_epoch, "a local graph");
   }
-  applyGraphObjects(*msg);
+  if (!graph.planes.empty() || !graph.objects.empty()) {
+    objects_.applyGraph(graph.planes, graph.objects);
+  }
   if (ok_status && (!T_w_c_ || msg->header.stamp > pose_stamp_)) {
-    T_w_c_ = edgeslam ? full.T_w_c : graph.T_w_c;
+    T_w_c_ = graph.T_w_c;
     pose_stamp_ = msg->header.stamp;
   }
   last_graph_frame_ = msg->frame_index;
   last_progress_ = ros::WallTime::now();
   uploaded_since_progress_ = false;
 
-  RoundTrip trip;
+  ecar_bridge::RoundTrip trip;
   trip.device_id = config_.device_id;
   trip.bytes_up = it->bytes_up;
   trip.sent = it->sent;
   trip.received = received;
   trip.tracking_time_device = it->tracking_time;
-  const ecar_msgs::RoundTripMetrics metrics = toRoundTripMetrics(*msg, trip);
+  const ecar_msgs::RoundTripMetrics metrics = ecar_bridge::toMsg(*msg, trip);
   metrics_pub_.publish(metrics);
   global_metrics_pub_.publish(metrics);
 
   if (ok_status && edgeslam) {
-    tracker_->replaceLocalMap(full);
+    tracker_->replaceLocalMap(graph);
   } else if (ok_status) {
     const ecar::GraphUpdate u = tracker_->addLocalGraph(it->gray, graph);
     if (!u.queue.missing.empty() && msg->frame_index >= last_reset_frame_ && !reset_next_) {
@@ -399,35 +409,12 @@ void Device::prunePending(const ros::Time& now) {
 
 // ---------------------------------------------------------------- virtual objects
 
-void Device::applyGraphObjects(const ecar_msgs::LocalGraph& msg) {
-  if (msg.planes.empty() && msg.objects.empty()) return;
-  graph_planes_.clear();
-  graph_objects_.clear();
-  for (size_t i = 0; i < msg.planes.size(); ++i) {
-    try {
-      graph_planes_.push_back(fromPlane(msg.planes[i], "planes[" + std::to_string(i) + "]"));
-    } catch (const ecar::Error& e) {
-      ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph of frame %u: plane skipped: %s",
-                        config_.device_id.c_str(), msg.frame_index, e.what());
-    }
-  }
-  for (size_t i = 0; i < msg.objects.size(); ++i) {
-    try {
-      graph_objects_.push_back(
-          fromVirtualObject(msg.objects[i], "objects[" + std::to_string(i) + "]"));
-    } catch (const ecar::Error& e) {
-      ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph of frame %u: object skipped: %s",
-                        config_.device_id.c_str(), msg.frame_index, e.what());
-    }
-  }
-  objects_.applyGraph(graph_planes_, graph_objects_);
-}
-
 void Device::onTouch(const ecar_msgs::TouchConstPtr& msg) {
   std::lock_guard<std::mutex> lock(mutex_);
   const char* id = config_.device_id.c_str();
+  ecar::Touch touch;
   try {
-    validateTouch(*msg);
+    touch = ecar_bridge::fromMsg(*msg);
   } catch (const ecar::Error& e) {
     ROS_WARN_THROTTLE(kWarnPeriod, "%s: touch dropped: %s", id, e.what());
     return;
@@ -440,12 +427,13 @@ void Device::onTouch(const ecar_msgs::TouchConstPtr& msg) {
     return;
   }
   requests_.clear();
-  objects_.touch(fromTouch(*msg), *T_w_c_, *camera_, &requests_);
+  objects_.touch(touch, *T_w_c_, *camera_, &requests_);
   std_msgs::Header header;
   header.stamp = msg->header.stamp.isZero() ? ros::Time::now() : msg->header.stamp;
   header.frame_id = config_.map_frame;
-  for (const ecar::VoRequest& r : requests_) {
-    interaction_pub_.publish(toInteraction(r, config_.device_id, header));
+  for (ecar::VoRequest& r : requests_) {
+    r.device = config_.device_id;
+    interaction_pub_.publish(ecar_bridge::toMsg(r, header));
   }
 }
 
@@ -459,7 +447,7 @@ void Device::onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg
     return;
   }
   std::string what;
-  if (objects_.applyResult(fromInteractionResult(*msg), &what)) {
+  if (objects_.applyResult(ecar_bridge::fromMsg(*msg), &what)) {
     ROS_DEBUG("%s: %s", id, what.c_str());
   } else {
     ROS_WARN_THROTTLE(0.5, "%s: %s", id, what.c_str());
@@ -469,9 +457,8 @@ void Device::onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg
 void Device::onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg) {
   std::lock_guard<std::mutex> lock(mutex_);
   try {
-    graph_planes_.clear();
-    graph_objects_.assign(1, fromVirtualObject(*msg, "object"));
-    objects_.applyGraph(graph_planes_, graph_objects_);
+    graph_objects_.assign(1, ecar_bridge::fromMsg(*msg, "object"));
+    objects_.applyGraph({}, graph_objects_);
   } catch (const ecar::Error& e) {
     ROS_WARN_THROTTLE(kWarnPeriod, "%s: %s dropped: %s", config_.device_id.c_str(),
                       config_.direct_objects_topic.c_str(), e.what());

@@ -3,6 +3,7 @@
 #include <cctype>
 #include <cmath>
 
+#include "ecar_bridge/params.h"
 #include "ecar_core/common/error.h"
 #include "ecar_device/device.h"
 
@@ -15,85 +16,6 @@ bool isDeviceName(const std::string& name) {
     return std::isalnum(static_cast<unsigned char>(c)) || c == '_';
   });
 }
-
-/// Reads the members of one struct of parameters; remembers which it used.
-class ParamReader {
- public:
-  ParamReader(const XmlRpc::XmlRpcValue& params, const std::string& prefix)
-      : params_(params), prefix_(prefix) {}
-
-  void read(const std::string& key, std::string* value) {
-    if (const XmlRpc::XmlRpcValue* v = find(key)) {
-      if (v->getType() != XmlRpc::XmlRpcValue::TypeString) fail(key, "a string");
-      *value = static_cast<std::string>(*v);
-    }
-  }
-  void read(const std::string& key, bool* value) {
-    if (const XmlRpc::XmlRpcValue* v = find(key)) {
-      if (v->getType() != XmlRpc::XmlRpcValue::TypeBoolean) fail(key, "a bool");
-      *value = static_cast<bool>(*v);
-    }
-  }
-  void read(const std::string& key, int* value) {
-    if (const XmlRpc::XmlRpcValue* v = find(key)) {
-      if (v->getType() != XmlRpc::XmlRpcValue::TypeInt) fail(key, "an integer");
-      *value = static_cast<int>(*v);
-    }
-  }
-  void read(const std::string& key, double* value) {
-    if (const XmlRpc::XmlRpcValue* v = find(key)) {
-      if (v->getType() == XmlRpc::XmlRpcValue::TypeInt) {
-        *value = static_cast<int>(*v);
-      } else if (v->getType() == XmlRpc::XmlRpcValue::TypeDouble) {
-        *value = static_cast<double>(*v);
-      } else {
-        fail(key, "a number");
-      }
-    }
-  }
-  void read(const std::string& key, float* value) {
-    double d = *value;
-    read(key, &d);
-    *value = static_cast<float>(d);
-  }
-  /// A nested struct of parameters (e.g. "tracking").
-  ParamReader child(const std::string& key) {
-    used_.push_back(key);
-    if (params_.getType() == XmlRpc::XmlRpcValue::TypeStruct && params_.hasMember(key)) {
-      const XmlRpc::XmlRpcValue& v = params_[key];
-      if (v.getType() != XmlRpc::XmlRpcValue::TypeStruct) fail(key, "a map of parameters");
-      return ParamReader(v, prefix_ + key + "/");
-    }
-    return ParamReader(XmlRpc::XmlRpcValue(), prefix_ + key + "/");
-  }
-  /// Members not read (misspelt or unknown parameters).
-  std::vector<std::string> unknown() const {
-    std::vector<std::string> out;
-    if (params_.getType() != XmlRpc::XmlRpcValue::TypeStruct) return out;
-    for (auto it = params_.begin(); it != params_.end(); ++it) {
-      if (std::find(used_.begin(), used_.end(), it->first) == used_.end()) {
-        out.push_back(prefix_ + it->first);
-      }
-    }
-    return out;
-  }
-
- private:
-  const XmlRpc::XmlRpcValue* find(const std::string& key) {
-    used_.push_back(key);
-    if (params_.getType() != XmlRpc::XmlRpcValue::TypeStruct || !params_.hasMember(key)) {
-      return nullptr;
-    }
-    return &params_[key];
-  }
-  [[noreturn]] void fail(const std::string& key, const std::string& type) const {
-    throw ecar::Error("~" + prefix_ + key + ": expected " + type);
-  }
-
-  XmlRpc::XmlRpcValue params_;
-  std::string prefix_;
-  std::vector<std::string> used_;
-};
 
 }  // namespace
 
@@ -124,6 +46,7 @@ void DeviceConfig::validate() const {
   if (connect_service.empty()) fail("connect_service", "must not be empty");
   if (global_metrics_topic.empty()) fail("global_metrics_topic", "must not be empty");
   if (direct_objects_topic.empty()) fail("direct_objects_topic", "must not be empty");
+  if (image_transport.empty()) fail("image_transport", "must not be empty (e.g. raw, compressed)");
   if (!std::isfinite(touch_pose_timeout) || touch_pose_timeout <= 0.0) {
     fail("touch_pose_timeout", "must be > 0 s");
   }
@@ -151,7 +74,7 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   DeviceConfig c;
   c.device_id = ns;
   c.device_id.erase(0, c.device_id.find_first_not_of('/'));
-  ParamReader r(params, "");
+  ecar_bridge::ParamReader r(params, "~");
   r.read("device_id", &c.device_id);
   r.read("every", &c.every);
   r.read("jpeg_quality", &c.jpeg_quality);
@@ -167,20 +90,25 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("global_metrics_topic", &c.global_metrics_topic);
   r.read("touch_pose_timeout", &c.touch_pose_timeout);
   r.read("direct_objects_topic", &c.direct_objects_topic);
+  r.read("image_transport", &c.image_transport);
+  ecar_bridge::ParamReader& a = r.child("ar_view");
+  a.read("draw_points", &c.ar_view.draw_points);
+  a.read("draw_objects", &c.ar_view.draw_objects);
+  a.read("draw_status", &c.ar_view.draw_status);
   r.read("keyframe_queue", &c.tracker.keyframe_queue);
-  ParamReader t = r.child("tracking");
+  ecar_bridge::ParamReader& t = r.child("tracking");
   t.read("projection_radius", &c.tracker.projection_radius);
   t.read("keyframe_radius", &c.tracker.keyframe_radius);
   t.read("refine_radius", &c.tracker.refine_radius);
   t.read("min_matches", &c.tracker.min_matches);
   t.read("min_inliers", &c.tracker.min_inliers);
-  ParamReader o = r.child("orb");
+  ecar_bridge::ParamReader& o = r.child("orb");
   o.read("num_features", &c.tracker.orb.num_features);
   o.read("scale_factor", &c.tracker.orb.scale_factor);
   o.read("num_levels", &c.tracker.orb.num_levels);
   o.read("fast_threshold", &c.tracker.orb.fast_threshold);
   o.read("min_fast_threshold", &c.tracker.orb.min_fast_threshold);
-  ParamReader v = r.child("objects");
+  ecar_bridge::ParamReader& v = r.child("objects");
   v.read("segment_length", &c.objects.segment_length);
   v.read("min_segment_length", &c.objects.min_segment_length);
   v.read("max_distance", &c.objects.max_distance);
@@ -188,21 +116,14 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   v.read("boundary_margin", &c.objects.boundary_margin);
   v.read("near_clip", &c.objects.near_clip);
   v.read("max_thickness_px", &c.objects.max_thickness_px);
-  if (unknown) {
-    *unknown = r.unknown();
-    for (const auto& k : t.unknown()) unknown->push_back(k);
-    for (const auto& k : o.unknown()) unknown->push_back(k);
-    for (const auto& k : v.unknown()) unknown->push_back(k);
-  }
+  if (unknown) *unknown = r.unknown();
   c.validate();
   return c;
 }
 
 DeviceConfig loadDeviceConfig(const ros::NodeHandle& pnh, const std::string& ns) {
-  XmlRpc::XmlRpcValue params;
-  if (!ros::param::get(pnh.getNamespace(), params)) params = XmlRpc::XmlRpcValue();
   std::vector<std::string> unknown;
-  DeviceConfig c = parseDeviceConfig(params, ns, &unknown);
+  DeviceConfig c = parseDeviceConfig(ecar_bridge::paramsOf(pnh), ns, &unknown);
   for (const auto& k : unknown) {
     ROS_WARN("%s: unknown parameter ~%s (ignored)", c.device_id.c_str(), k.c_str());
   }

@@ -10,7 +10,7 @@ int main(int argc, char** argv) {
   ros::NodeHandle nh;
   ros::NodeHandle pnh("~");
   try {
-    ecar_device::Device device(nh, ecar_device::loadDeviceConfig(pnh, nh.getNamespace()));
+    ecar_device::Device device(nh, pnh, ecar_device::loadDeviceConfig(pnh, nh.getNamespace()));
     ros::spin();
   } catch (const ecar::Error& e) {
     ROS_FATAL("%s: %s", ros::this_node::getName().c_str(), e.what());

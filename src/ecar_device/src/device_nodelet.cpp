@@ -14,7 +14,7 @@ class DeviceNodelet : public nodelet::Nodelet {
   void onInit() override {
     try {
       device_ = std::make_unique<Device>(
-          getNodeHandle(),
+          getNodeHandle(), getPrivateNodeHandle(),
           loadDeviceConfig(getPrivateNodeHandle(), getNodeHandle().getNamespace()));
     } catch (const ecar::Error& e) {
       NODELET_FATAL("%s", e.what());

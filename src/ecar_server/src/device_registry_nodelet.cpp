@@ -1,6 +1,7 @@
 // DeviceRegistry: /ecar/connect and /ecar/disconnect, and the device timeout.
-// The registry itself is ServerContext (shared with the other nodelets, which
-// subscribe and advertise per device when it reports a device added).
+// The registry is the global graph's (ecar::GlobalGraph::connect checks the
+// name, the sync mode and the camera, which creates the SLAM map); the other
+// nodelets subscribe and advertise per device when it reports a device added.
 #include <memory>
 
 #include <ecar_msgs/Connect.h>
@@ -9,10 +10,10 @@
 #include <ros/ros.h>
 #include <pluginlib/class_list_macros.hpp>
 
+#include "ecar_bridge/camera.h"
+#include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
 #include "ecar_server/ros_params.h"
-#include "ecar_server/server_context.h"
-#include "ecar_sim/conversions.h"
 
 namespace ecar_server {
 
@@ -28,33 +29,35 @@ class DeviceRegistryNodelet : public nodelet::Nodelet {
   void onInit() override {
     ros::NodeHandle& nh = getMTNodeHandle();
     const ServerConfig config = loadServerConfig(nh);
-    ctx_ = ServerContext::get(nh.getNamespace(), config);
-    connect_srv_ = nh.advertiseService(kConnectService, &DeviceRegistryNodelet::onConnect, this);
-    disconnect_srv_ =
-        nh.advertiseService(kDisconnectService, &DeviceRegistryNodelet::onDisconnect, this);
+    graph_ = sharedGraph(nh.getNamespace(), config);
+    connect_srv_ =
+        nh.advertiseService(ecar_bridge::kConnectService, &DeviceRegistryNodelet::onConnect, this);
+    disconnect_srv_ = nh.advertiseService(ecar_bridge::kDisconnectService,
+                                          &DeviceRegistryNodelet::onDisconnect, this);
     const double period = std::max(0.1, std::min(1.0, config.device_timeout / 4.0));
     timer_ = nh.createWallTimer(ros::WallDuration(period), &DeviceRegistryNodelet::onTimer, this);
-    NODELET_INFO("device registry: %s, sync_mode %s, device_timeout %.1f s", kConnectService,
+    NODELET_INFO("device registry: %s, sync_mode %s, device_timeout %.1f s",
+                 ecar_bridge::kConnectService,
                  config.sync_mode.c_str(), config.device_timeout);
   }
 
   bool onConnect(ecar_msgs::Connect::Request& req, ecar_msgs::Connect::Response& res) {
     ecar::PinholeCamera camera;
     try {
-      camera = ecar_sim::fromCameraInfo(req.camera_info);
+      camera = ecar_bridge::fromMsg(req.camera_info);
     } catch (const ecar::Error& e) {
       res.accepted = false;
       res.message = std::string("camera_info refused: ") + e.what();
       NODELET_WARN("device %s: %s", req.device_id.c_str(), res.message.c_str());
       return true;
     }
-    const ConnectResult r =
-        ctx_->connect(req.device_id, camera, req.sync_mode, req.keyframe_queue, steadySeconds());
+    const ecar::DeviceConnectResult r =
+        graph_->connect(req.device_id, camera, req.sync_mode, req.keyframe_queue, steadySeconds());
     res.accepted = r.accepted;
     res.message = r.message;
-    res.map_epoch = ctx_->mapEpoch();
+    res.map_epoch = graph_->epoch();
     if (r.accepted) {
-      const DeviceTopicNames topics{req.device_id};
+      const ecar_bridge::DeviceTopics topics{req.device_id};
       res.upload_topic = topics.upload();
       res.local_graph_topic = topics.localGraph();
       res.interaction_topic = topics.interaction();
@@ -66,20 +69,20 @@ class DeviceRegistryNodelet : public nodelet::Nodelet {
   }
 
   bool onDisconnect(ecar_msgs::Disconnect::Request& req, ecar_msgs::Disconnect::Response& res) {
-    res.ok = ctx_->disconnect(req.device_id);
+    res.ok = graph_->disconnect(req.device_id);
     res.message = res.ok ? "disconnected" : "device '" + req.device_id + "' is not connected";
     NODELET_INFO("device %s: %s", req.device_id.c_str(), res.message.c_str());
     return true;
   }
 
   void onTimer(const ros::WallTimerEvent&) {
-    for (const auto& name : ctx_->removeSilent(steadySeconds())) {
+    for (const auto& name : graph_->removeSilent(steadySeconds())) {
       NODELET_WARN("device %s: silent for %.1f s (device_timeout): dropped", name.c_str(),
-                   ctx_->config().device_timeout);
+                   graph_->devices().config().device_timeout);
     }
   }
 
-  std::shared_ptr<ServerContext> ctx_;
+  std::shared_ptr<ecar::GlobalGraph> graph_;
   ros::ServiceServer connect_srv_, disconnect_srv_;
   ros::WallTimer timer_;
 };

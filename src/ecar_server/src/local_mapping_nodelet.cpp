@@ -1,11 +1,12 @@
-// LocalMapping: the SLAM's mapping thread (started with the SlamSystem, which
-// maps every device's keyframes into the one map) reports each keyframe it
-// finished; this nodelet publishes it on /ecar/keyframe_mapped. When the
-// mapper culls a redundant keyframe, its plane and cell links go and the
-// objects hanging on it (vo_attach keyframe) move to its heir, the neighbour
-// that shared the most points with it.
+// LocalMapping (core: ecar::LocalMapper, started with the SLAM system, which
+// maps every device's keyframes into the one map): reports each keyframe it
+// finished on /ecar/keyframe_mapped. When the mapper culls a redundant
+// keyframe, the global graph drops its plane and cell links and moves the
+// objects hanging on it (vo_attach keyframe) to its heir, the neighbour that
+// shared the most points with it.
 #include <memory>
 #include <mutex>
+#include <optional>
 
 #include <ecar_msgs/KeyFrameEvent.h>
 #include <nodelet/nodelet.h>
@@ -13,17 +14,18 @@
 #include <boost/make_shared.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
+#include "ecar_bridge/server_pipeline.h"
+#include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
-#include "ecar_server/conversions.h"
+#include "ecar_core/slam/map_queries.h"
 #include "ecar_server/ros_params.h"
-#include "ecar_server/server_context.h"
 
 namespace ecar_server {
 
-class LocalMappingNodelet : public nodelet::Nodelet, public ContextListener {
+class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
  public:
   ~LocalMappingNodelet() override {
-    if (ctx_) ctx_->removeListener(this);
+    if (graph_) graph_->removeListener(this);
     std::lock_guard<std::mutex> lock(mutex_);
     if (slam_) {
       slam_->mapper().setMappedCallback({});
@@ -43,35 +45,28 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ContextListener {
  private:
   void onInit() override {
     ros::NodeHandle& nh = getMTNodeHandle();
-    ctx_ = ServerContext::get(nh.getNamespace(), loadServerConfig(nh));
-    mapped_pub_ = nh.advertise<ecar_msgs::KeyFrameEvent>(kKeyFrameMappedTopic, 100);
-    ctx_->addListener(this);
+    graph_ = sharedGraph(nh.getNamespace(), loadServerConfig(nh));
+    mapped_pub_ = nh.advertise<ecar_msgs::KeyFrameEvent>(ecar_bridge::kKeyFrameMappedTopic, 100);
+    graph_->addListener(this);
   }
 
   // On the mapping thread.
   void onMapped(const ecar::SlamSystem& slam, ecar::KeyFrameId id) {
-    MappedKeyFrame kf;
-    ecar::DeviceId device;
-    {
-      auto lock = slam.map().readLock();
-      const ecar::KeyFrame* k = slam.map().keyframe(id);
-      if (!k) return;  // culled already
-      kf.id = id;
-      device = k->device;
-      kf.frame_index = k->frame_index;
-      kf.timestamp = k->timestamp;
-      kf.gravity_c = k->features.gravity_c;
-    }
-    kf.device = ctx_->deviceName(device);
-    mapped_pub_.publish(boost::make_shared<ecar_msgs::KeyFrameEvent>(toMsg(kf)));
+    const std::optional<ecar::KeyFrameSummary> kf = ecar::keyframeSummary(slam.map(), id);
+    if (!kf) return;  // culled already
+    ecar_bridge::MappedKeyFrame event;
+    event.id = id;
+    event.device = graph_->devices().name(kf->device);
+    event.frame_index = kf->frame_index;
+    event.timestamp = kf->timestamp;
+    event.gravity_c = kf->gravity_c;
+    mapped_pub_.publish(boost::make_shared<ecar_msgs::KeyFrameEvent>(ecar_bridge::toMsg(event)));
   }
 
   // On the mapping thread.
   void onCulled(ecar::KeyFrameId culled, ecar::KeyFrameId heir) {
-    Structure& structure = ctx_->structure();
-    structure.eraseKeyFrame(culled);
     try {
-      const size_t moved = structure.vos().moveKeyFrame(culled, heir);
+      const size_t moved = graph_->eraseKeyFrame(culled, heir);
       if (moved > 0) {
         NODELET_INFO("keyframe %u culled: %zu virtual objects now hang on keyframe %u",
                      culled.value, moved, heir.value);
@@ -81,7 +76,7 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ContextListener {
     }
   }
 
-  std::shared_ptr<ServerContext> ctx_;
+  std::shared_ptr<ecar::GlobalGraph> graph_;
   ros::Publisher mapped_pub_;
   std::mutex mutex_;  // guards slam_
   std::shared_ptr<ecar::SlamSystem> slam_;

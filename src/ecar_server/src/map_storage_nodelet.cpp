@@ -2,9 +2,10 @@
 // write and read the server's whole map (keyframes, points, planes, grid
 // links, VOs) to one file, and the parameter map_file ("" = none) loads one at
 // startup, so that a session resumes in the same coordinate system. The work
-// is saveServerMap / loadServerMap (map_storage.h); a failure is answered
-// with success = false and a message naming the path and the problem, and the
-// server goes on with the map it had.
+// is the global graph's (ecar::GlobalGraph::save / load); a failure is
+// answered with success = false and a message naming the path and the
+// problem, and the server goes on with the map it had. Devices notice a load
+// by the map epoch of their next local graph.
 #include <cstdlib>
 #include <memory>
 #include <string>
@@ -15,15 +16,11 @@
 #include <ros/ros.h>
 #include <pluginlib/class_list_macros.hpp>
 
+#include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
-#include "ecar_server/map_storage.h"
 #include "ecar_server/ros_params.h"
-#include "ecar_server/server_context.h"
 
 namespace ecar_server {
-
-constexpr const char* kSaveMapService = "/ecar/save_map";
-constexpr const char* kLoadMapService = "/ecar/load_map";
 
 class MapStorageNodelet : public nodelet::Nodelet {
  public:
@@ -35,28 +32,31 @@ class MapStorageNodelet : public nodelet::Nodelet {
  private:
   void onInit() override {
     ros::NodeHandle& nh = getMTNodeHandle();
-    ctx_ = ServerContext::get(nh.getNamespace(), loadServerConfig(nh));
+    graph_ = sharedGraph(nh.getNamespace(), loadServerConfig(nh));
     std::string map_file;
     nh.param<std::string>("map_file", map_file, "");
     if (!map_file.empty()) {
       std::string message;
-      MapCounts counts;
+      ecar::MapCounts counts;
       if (load(expandHome(map_file), &counts, &message)) {
         NODELET_INFO("map_file: %s", message.c_str());
       } else {
         NODELET_ERROR("map_file: %s; starting with an empty map", message.c_str());
       }
     }
-    save_srv_ = nh.advertiseService(kSaveMapService, &MapStorageNodelet::onSave, this);
-    load_srv_ = nh.advertiseService(kLoadMapService, &MapStorageNodelet::onLoad, this);
-    NODELET_INFO("map storage: %s, %s", kSaveMapService, kLoadMapService);
+    save_srv_ =
+        nh.advertiseService(ecar_bridge::kSaveMapService, &MapStorageNodelet::onSave, this);
+    load_srv_ =
+        nh.advertiseService(ecar_bridge::kLoadMapService, &MapStorageNodelet::onLoad, this);
+    NODELET_INFO("map storage: %s, %s", ecar_bridge::kSaveMapService,
+                 ecar_bridge::kLoadMapService);
   }
 
   bool onSave(ecar_msgs::SaveMap::Request& req, ecar_msgs::SaveMap::Response& res) {
     const std::string path = expandHome(req.path);
     try {
       if (path.empty()) throw ecar::Error("save_map: the path is empty");
-      const MapCounts c = saveServerMap(*ctx_, path);
+      const ecar::MapCounts c = graph_->save(path);
       res.success = true;
       res.keyframes = c.keyframes;
       res.map_points = c.map_points;
@@ -73,7 +73,7 @@ class MapStorageNodelet : public nodelet::Nodelet {
   }
 
   bool onLoad(ecar_msgs::LoadMap::Request& req, ecar_msgs::LoadMap::Response& res) {
-    MapCounts c;
+    ecar::MapCounts c;
     res.success = load(expandHome(req.path), &c, &res.message);
     if (res.success) {
       res.keyframes = c.keyframes;
@@ -88,12 +88,12 @@ class MapStorageNodelet : public nodelet::Nodelet {
   }
 
   // Loads `path`; false with `message` naming the path and the problem.
-  bool load(const std::string& path, MapCounts* counts, std::string* message) {
+  bool load(const std::string& path, ecar::MapCounts* counts, std::string* message) {
     try {
       if (path.empty()) throw ecar::Error("load_map: the path is empty");
-      *counts = loadServerMap(*ctx_, path, ros::Time::now().toSec());
+      *counts = graph_->load(path);
       *message = "loaded " + describe(*counts) + " from '" + path + "', map epoch " +
-                 std::to_string(ctx_->mapEpoch());
+                 std::to_string(graph_->epoch());
       return true;
     } catch (const std::exception& e) {
       *message = e.what();
@@ -101,7 +101,7 @@ class MapStorageNodelet : public nodelet::Nodelet {
     }
   }
 
-  static std::string describe(const MapCounts& c) {
+  static std::string describe(const ecar::MapCounts& c) {
     char text[200];
     std::snprintf(text, sizeof(text),
                   "%u keyframes, %u map points, %u planes, %u objects (%zu bytes, %.0f ms)",
@@ -116,7 +116,7 @@ class MapStorageNodelet : public nodelet::Nodelet {
     return path;
   }
 
-  std::shared_ptr<ServerContext> ctx_;
+  std::shared_ptr<ecar::GlobalGraph> graph_;
   ros::ServiceServer save_srv_, load_srv_;
 };
 

@@ -8,8 +8,7 @@
 #include <visualization_msgs/InteractiveMarkerControl.h>
 #include <Eigen/Geometry>
 
-#include "ecar_core/structure/grid_caster.h"
-#include "ecar_core/structure/grid_map.h"
+#include "ecar_core/structure/grid_cells.h"
 
 namespace ecar_server {
 namespace {
@@ -71,7 +70,7 @@ std_msgs::ColorRGBA deviceColour(ecar::DeviceId id) {
   return colour;
 }
 
-visualization_msgs::MarkerArray mapMarkers(const ecar::Map& map,
+visualization_msgs::MarkerArray mapMarkers(const ecar::MapOverview& map,
                                            const std::vector<CameraMarker>& cameras,
                                            const std::string& frame, const ros::Time& stamp) {
   visualization_msgs::MarkerArray out;
@@ -80,19 +79,12 @@ visualization_msgs::MarkerArray mapMarkers(const ecar::Map& map,
   points.color.r = points.color.g = points.color.b = 0.6f;
   auto keyframes = marker("keyframes", 0, visualization_msgs::Marker::CUBE_LIST, frame, stamp);
   keyframes.scale.x = keyframes.scale.y = keyframes.scale.z = 0.08;
-  {
-    auto lock = map.readLock();
-    const auto point_ids = map.pointIds();
-    points.points.reserve(point_ids.size());
-    for (const auto& id : point_ids) {
-      if (const ecar::MapPoint* p = map.point(id)) points.points.push_back(toPoint(p->p_w));
-    }
-    for (const auto& id : map.keyframeIds()) {
-      const ecar::KeyFrame* kf = map.keyframe(id);
-      if (!kf) continue;
-      keyframes.points.push_back(toPoint(kf->center()));
-      keyframes.colors.push_back(deviceColour(kf->device));
-    }
+  points.points.reserve(map.points.size());
+  for (const auto& p : map.points) points.points.push_back(toPoint(p));
+  keyframes.points.reserve(map.keyframes.size());
+  for (const auto& kf : map.keyframes) {
+    keyframes.points.push_back(toPoint(kf.center));
+    keyframes.colors.push_back(deviceColour(kf.device));
   }
   out.markers.push_back(std::move(points));
   out.markers.push_back(std::move(keyframes));

@@ -1,7 +1,8 @@
-// Tracking (coordinate alignment): subscribes /<device>/upload for every
-// registered device, checks each upload, and aligns it on a worker pool
-// (DeviceWorkQueue: one device's uploads in order); publishes the result on
-// /ecar/tracked_frame (zero-copy to the GraphPublisher and Visualizer).
+// Tracking (the paper's coordinate alignment; core: ecar::SlamSystem::track):
+// subscribes /<device>/upload for every registered device, checks each
+// upload, and aligns it on a worker pool (DeviceWorkQueue: one device's
+// uploads in order); publishes the result on /ecar/tracked_frame (zero-copy to
+// GridConnection and the Visualizer).
 #include <chrono>
 #include <map>
 #include <memory>
@@ -14,18 +15,19 @@
 #include <boost/make_shared.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
+#include "ecar_bridge/device_messages.h"
+#include "ecar_bridge/server_pipeline.h"
+#include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
-#include "ecar_server/conversions.h"
 #include "ecar_server/device_work_queue.h"
 #include "ecar_server/ros_params.h"
-#include "ecar_server/server_context.h"
 
 namespace ecar_server {
 
-class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
+class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
  public:
   ~TrackingNodelet() override {
-    if (ctx_) ctx_->removeListener(this);
+    if (graph_) graph_->removeListener(this);
     {
       std::lock_guard<std::mutex> lock(mutex_);
       subscribers_.clear();
@@ -38,18 +40,18 @@ class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
     slam_ = slam;
   }
 
-  void onDeviceAdded(const DeviceInfo& device) override {
+  void onDeviceAdded(const ecar::DeviceInfo& device) override {
     const std::string name = device.name;
     const boost::function<void(const ecar_msgs::Upload::ConstPtr&)> callback =
         [this, name](const ecar_msgs::Upload::ConstPtr& msg) { onUpload(name, msg); };
     ros::Subscriber sub = getMTNodeHandle().subscribe<ecar_msgs::Upload>(
-        DeviceTopicNames{name}.upload(), static_cast<uint32_t>(config_.upload_queue_size), callback,
+        ecar_bridge::DeviceTopics{name}.upload(), static_cast<uint32_t>(config_.upload_queue_size), callback,
         ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay());
     std::lock_guard<std::mutex> lock(mutex_);
     subscribers_[name] = sub;
   }
 
-  void onDeviceRemoved(const DeviceInfo& device) override {
+  void onDeviceRemoved(const ecar::DeviceInfo& device) override {
     std::shared_ptr<ecar::SlamSystem> slam;
     {
       std::lock_guard<std::mutex> lock(mutex_);
@@ -66,11 +68,11 @@ class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
   void onInit() override {
     ros::NodeHandle& nh = getMTNodeHandle();
     config_ = loadServerConfig(nh);
-    ctx_ = ServerContext::get(nh.getNamespace(), config_);
+    graph_ = sharedGraph(nh.getNamespace(), config_);
     pool_ = std::make_unique<DeviceWorkQueue>(config_.workers,
                                               static_cast<size_t>(config_.device_queue_size));
-    tracked_pub_ = nh.advertise<ecar_msgs::TrackedFrame>(kTrackedFrameTopic, 100);
-    ctx_->addListener(this);
+    tracked_pub_ = nh.advertise<ecar_msgs::TrackedFrame>(ecar_bridge::kTrackedFrameTopic, 100);
+    graph_->addListener(this);
     NODELET_INFO("tracking: %d workers, %d uploads queued per device", config_.workers,
                  config_.device_queue_size);
   }
@@ -91,25 +93,25 @@ class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
                             "device %s: upload with device_id '%s' (field device_id) on "
                             "%s: dropped",
                             device.c_str(), msg->device_id.c_str(),
-                            DeviceTopicNames{device}.upload().c_str());
+                            ecar_bridge::DeviceTopics{device}.upload().c_str());
       return;
     }
-    if (!ctx_->touch(device, steadySeconds())) {
+    if (!graph_->touch(device, steadySeconds())) {
       NODELET_WARN_THROTTLE(2.0, "device %s: upload from a device not connected: dropped",
                             device.c_str());
       return;
     }
-    if (msg->reset) ctx_->resetMirror(device);
-    UploadMotion motion;
+    ecar_bridge::UploadContent content;
     try {
-      motion = motionOf(*msg);
+      content = ecar_bridge::fromMsg(*msg);  // checks gravity and odometry; leaves the image
     } catch (const ecar::Error& e) {
       NODELET_WARN_THROTTLE(2.0, "device %s: upload frame %u: %s: dropped", device.c_str(),
                             msg->frame_index, e.what());
       return;
     }
-    const bool dropped = pool_->push(
-        device, [this, device, msg, motion, received] { align(device, msg, motion, received); });
+    const bool dropped = pool_->push(device, [this, device, msg, content, received] {
+      align(device, msg, content, received);
+    });
     if (dropped) {
       NODELET_WARN_THROTTLE(2.0,
                             "device %s: %d uploads wait for alignment "
@@ -120,17 +122,17 @@ class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
 
   // On a worker: decode, align, publish.
   void align(const std::string& device, const ecar_msgs::Upload::ConstPtr& msg,
-             const UploadMotion& motion, const ros::Time& received) {
+             const ecar_bridge::UploadContent& content, const ros::Time& received) {
     std::shared_ptr<ecar::SlamSystem> slam;
     {
       std::lock_guard<std::mutex> lock(mutex_);
       slam = slam_;
     }
-    const std::optional<DeviceInfo> info = ctx_->device(device);
+    const std::optional<ecar::DeviceInfo> info = graph_->devices().device(device);
     if (!slam || !info) return;  // disconnected meanwhile
     cv::Mat image;
     try {
-      image = decodeImage(*msg);
+      image = ecar_bridge::decodeImage(*msg);
     } catch (const ecar::Error& e) {
       NODELET_WARN_THROTTLE(2.0, "device %s: upload frame %u: %s: dropped", device.c_str(),
                             msg->frame_index, e.what());
@@ -146,8 +148,8 @@ class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
     }
     const auto t0 = std::chrono::steady_clock::now();
     const ecar::TrackResult result = slam->track(info->id, image, msg->header.stamp.toSec(),
-                                                 msg->frame_index, motion.gravity_c, motion.T_o_c);
-    FrameMeta meta;
+                                                 msg->frame_index, content.gravity_c, content.T_o_c);
+    ecar_bridge::FrameMeta meta;
     meta.device = device;
     meta.frame_index = msg->frame_index;
     meta.stamp = msg->header.stamp;
@@ -155,15 +157,17 @@ class TrackingNodelet : public nodelet::Nodelet, public ContextListener {
     meta.server_received = received;
     meta.tracking_time =
         std::chrono::duration<float>(std::chrono::steady_clock::now() - t0).count();
+    meta.reset = content.reset;
     if (!result.message.empty()) {
       NODELET_DEBUG("device %s: frame %u: %s", device.c_str(), msg->frame_index,
                     result.message.c_str());
     }
-    tracked_pub_.publish(boost::make_shared<ecar_msgs::TrackedFrame>(toMsg(result, meta)));
+    tracked_pub_.publish(
+        boost::make_shared<ecar_msgs::TrackedFrame>(ecar_bridge::toMsg(result, meta)));
   }
 
   ServerConfig config_;
-  std::shared_ptr<ServerContext> ctx_;
+  std::shared_ptr<ecar::GlobalGraph> graph_;
   std::unique_ptr<DeviceWorkQueue> pool_;
   ros::Publisher tracked_pub_;
   std::mutex mutex_;  // guards slam_ and subscribers_

@@ -1,48 +1,55 @@
 // Visualizer: /ecar/markers (throttled to marker_rate, only when subscribed)
 // and tf map -> <device>/camera_server for every tracked frame. The markers
-// show the map points, keyframes and cameras (markers.h mapMarkers), the planes
-// coloured by label, the live virtual objects and the cells each device last
-// saw (structureMarkers).
+// show the map points, keyframes and cameras (markers.h mapMarkers, from the
+// core's mapOverview), the planes coloured by label, the live virtual objects
+// and the cells each device last saw (/ecar/visible_structure).
 #include <map>
 #include <memory>
 #include <mutex>
 
 #include <ecar_msgs/TrackedFrame.h>
+#include <ecar_msgs/VisibleStructure.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 #include <tf2_ros/transform_broadcaster.h>
 #include <boost/make_shared.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
+#include "ecar_bridge/geometry.h"
+#include "ecar_bridge/server_pipeline.h"
+#include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
+#include "ecar_core/slam/map_queries.h"
 #include "ecar_server/markers.h"
 #include "ecar_server/ros_params.h"
-#include "ecar_server/server_context.h"
-#include "ecar_sim/conversions.h"
 
 namespace ecar_server {
 
-class VisualizerNodelet : public nodelet::Nodelet, public ContextListener {
+class VisualizerNodelet : public nodelet::Nodelet, public ecar::GraphListener {
  public:
   ~VisualizerNodelet() override {
     timer_.stop();
-    if (ctx_) ctx_->removeListener(this);
+    if (graph_) graph_->removeListener(this);
   }
 
-  void onDeviceRemoved(const DeviceInfo& device) override {
+  void onDeviceRemoved(const ecar::DeviceInfo& device) override {
     std::lock_guard<std::mutex> lock(mutex_);
     cameras_.erase(device.name);
-    ctx_->structure().eraseDevice(device.name);
+    cells_.erase(device.name);
   }
 
  private:
   void onInit() override {
     ros::NodeHandle& nh = getMTNodeHandle();
     const ServerConfig config = loadServerConfig(nh);
-    ctx_ = ServerContext::get(nh.getNamespace(), config);
-    ctx_->addListener(this);
-    markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>(kMarkersTopic, 2);
-    tracked_sub_ = nh.subscribe(kTrackedFrameTopic, 100, &VisualizerNodelet::onTrackedFrame, this);
+    graph_ = sharedGraph(nh.getNamespace(), config);
+    cell_size_ = config.grid.cell_size;
+    graph_->addListener(this);
+    markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>(ecar_bridge::kMarkersTopic, 2);
+    tracked_sub_ = nh.subscribe(ecar_bridge::kTrackedFrameTopic, 100,
+                                &VisualizerNodelet::onTrackedFrame, this);
+    visible_sub_ = nh.subscribe(ecar_bridge::kVisibleStructureTopic, 100,
+                                &VisualizerNodelet::onVisible, this);
     if (config.marker_rate > 0.0) {
       timer_ = nh.createWallTimer(ros::WallDuration(1.0 / config.marker_rate),
                                   &VisualizerNodelet::onTimer, this);
@@ -54,11 +61,11 @@ class VisualizerNodelet : public nodelet::Nodelet, public ContextListener {
         msg->status != ecar_msgs::TrackedFrame::RELOCALISED) {
       return;
     }
-    const std::optional<DeviceInfo> info = ctx_->device(msg->device_id);
+    const std::optional<ecar::DeviceInfo> info = graph_->devices().device(msg->device_id);
     if (!info) return;
     ecar::SE3 T_w_c;
     try {
-      T_w_c = ecar_sim::fromPose(msg->pose);
+      T_w_c = ecar_bridge::fromMsg(msg->pose);
     } catch (const ecar::Error&) {
       return;  // the tracker never produces one; nothing to show
     }
@@ -68,49 +75,64 @@ class VisualizerNodelet : public nodelet::Nodelet, public ContextListener {
     }
     std_msgs::Header header;
     header.stamp = msg->header.stamp;
-    header.frame_id = kMapFrame;
-    tf_.sendTransform(
-        ecar_sim::toTransform(T_w_c, header, DeviceTopicNames{info->name}.cameraServerFrame()));
+    header.frame_id = ecar_bridge::kMapFrame;
+    tf_.sendTransform(ecar_bridge::toTransformMsg(
+        T_w_c, header, ecar_bridge::DeviceTopics{info->name}.camera_server_frame()));
+  }
+
+  // The cells each device saw from its last aligned upload.
+  void onVisible(const ecar_msgs::VisibleStructure::ConstPtr& msg) {
+    if (msg->stale || msg->cells.empty()) return;
+    std::vector<ecar::CellKey> cells;
+    try {
+      cells = ecar_bridge::fromMsg(*msg).cells;
+    } catch (const ecar::Error&) {
+      return;  // GridConnection never sends one; nothing to show
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    cells_[msg->frame.device_id] = std::move(cells);
   }
 
   void onTimer(const ros::WallTimerEvent&) {
     if (markers_pub_.getNumSubscribers() == 0) return;
-    const std::shared_ptr<ecar::SlamSystem> slam = ctx_->slam();
+    const std::shared_ptr<ecar::SlamSystem> slam = graph_->slam();
     if (!slam) return;
     std::vector<CameraMarker> cameras;
+    std::vector<DeviceCells> cells;
     {
       std::lock_guard<std::mutex> lock(mutex_);
       for (const auto& kv : cameras_) cameras.push_back(kv.second);
+      for (const auto& kv : cells_) {
+        const std::optional<ecar::DeviceInfo> info = graph_->devices().device(kv.first);
+        if (info) cells.push_back(DeviceCells{info->id, kv.second});
+      }
     }
     const ros::Time now = ros::Time::now();
     auto markers = boost::make_shared<visualization_msgs::MarkerArray>();
     // Everything is republished each time: drop what is gone (deleted objects).
     visualization_msgs::Marker clear;
-    clear.header.frame_id = kMapFrame;
+    clear.header.frame_id = ecar_bridge::kMapFrame;
     clear.action = visualization_msgs::Marker::DELETEALL;
     markers->markers.push_back(clear);
-    visualization_msgs::MarkerArray map = mapMarkers(slam->map(), cameras, kMapFrame, now);
+    visualization_msgs::MarkerArray map =
+        mapMarkers(ecar::mapOverview(slam->map()), cameras, ecar_bridge::kMapFrame, now);
     markers->markers.insert(markers->markers.end(), map.markers.begin(), map.markers.end());
-    Structure& structure = ctx_->structure();
-    std::vector<DeviceCells> cells;
-    for (auto& kv : structure.deviceCells()) {
-      const std::optional<DeviceInfo> info = ctx_->device(kv.first);
-      if (info) cells.push_back(DeviceCells{info->id, std::move(kv.second)});
-    }
     visualization_msgs::MarkerArray more =
-        structureMarkers(structure.planes().planes(), structure.vos().allObjects(), cells,
-                         ctx_->config().grid.cell_size, kMapFrame, now);
+        structureMarkers(graph_->planes().planes(), graph_->vos().allObjects(), cells, cell_size_,
+                         ecar_bridge::kMapFrame, now);
     markers->markers.insert(markers->markers.end(), more.markers.begin(), more.markers.end());
     markers_pub_.publish(markers);
   }
 
-  std::shared_ptr<ServerContext> ctx_;
+  std::shared_ptr<ecar::GlobalGraph> graph_;
+  double cell_size_ = 0.1;
   ros::Publisher markers_pub_;
-  ros::Subscriber tracked_sub_;
+  ros::Subscriber tracked_sub_, visible_sub_;
   ros::WallTimer timer_;
   tf2_ros::TransformBroadcaster tf_;
-  std::mutex mutex_;  // guards cameras_
+  std::mutex mutex_;  // guards cameras_ and cells_
   std::map<std::string, CameraMarker> cameras_;
+  std::map<std::string, std::vector<ecar::CellKey>> cells_;  ///< per device, its last upload's
 };
 
 }  // namespace ecar_server

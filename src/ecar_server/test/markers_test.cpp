@@ -94,6 +94,68 @@ TEST(VoMarkers, MoveKeepsTheObjectInItsPlane) {
   EXPECT_TRUE(moved.normal.isApprox(vo.normal));
 }
 
+ecar::VirtualObject lineAt(double x, double y) {
+  ecar::VirtualObject vo;
+  vo.start = Eigen::Vector3d(x, y, 0.0);
+  vo.end = Eigen::Vector3d(x + 0.3, y, 0.0);
+  vo.width = 0.05f;
+  vo.owner = "device_0";
+  return vo;
+}
+
+TEST(StructureMarkers, ShowPlanesObjectsAndCells) {
+  ecar::Plane floor;
+  floor.id = ecar::PlaneId(1);
+  floor.label = ecar::PlaneLabel::kFloor;
+  floor.boundary = {{0, 0, 0}, {2, 0, 0}, {2, 2, 0}, {0, 2, 0}};
+  ecar::VirtualObject line = lineAt(1.0, 1.0);
+  line.id = ecar::ObjectId(7);
+  line.r = 255;
+  ecar::VirtualObject gone = line;
+  gone.id = ecar::ObjectId(8);
+  gone.deleted = true;
+  const DeviceCells cells{ecar::DeviceId(2), {{0, 0, 0}, {1, 0, 0}}};
+  const visualization_msgs::MarkerArray m =
+      structureMarkers({floor}, {line, gone}, {cells}, 0.1, "map", ros::Time(1.0));
+  ASSERT_EQ(m.markers.size(), 3u);  // planes, one live object, one device's cells
+  EXPECT_EQ(m.markers[0].ns, "planes");
+  EXPECT_EQ(m.markers[0].points.size(), 6u);  // a quad: two triangles
+  EXPECT_EQ(m.markers[0].colors[0].g, labelColour(ecar::PlaneLabel::kFloor).g);
+  EXPECT_LT(m.markers[0].colors[0].a, 1.0f);
+  EXPECT_EQ(m.markers[1].ns, "objects");
+  EXPECT_EQ(m.markers[1].id, 7);
+  EXPECT_FLOAT_EQ(m.markers[1].scale.x, 0.05f);
+  EXPECT_FLOAT_EQ(m.markers[1].color.r, 1.0f);
+  EXPECT_EQ(m.markers[1].points.size(), 2u);
+  EXPECT_EQ(m.markers[2].ns, "cells");
+  EXPECT_EQ(m.markers[2].id, 2);
+  EXPECT_EQ(m.markers[2].points.size(), 2u);
+  EXPECT_NEAR(m.markers[2].points[1].x, 0.15, 1e-9);
+}
+
+TEST(MapMarkers, PointsKeyFramesByDeviceAndCameras) {
+  ecar::MapOverview map;
+  map.points = {{1, 2, 3}, {4, 5, 6}};
+  map.keyframes = {{ecar::KeyFrameId(1), ecar::DeviceId(1), {0, 0, 1}},
+                   {ecar::KeyFrameId(2), ecar::DeviceId(2), {1, 0, 1}}};
+  ecar::SE3 T = ecar::SE3::Identity();
+  T.translation() = Eigen::Vector3d(3, 0, 1);
+  const visualization_msgs::MarkerArray m =
+      mapMarkers(map, {CameraMarker{ecar::DeviceId(2), T}}, "map", ros::Time(2.0));
+  ASSERT_EQ(m.markers.size(), 3u);
+  EXPECT_EQ(m.markers[0].ns, "map_points");
+  EXPECT_EQ(m.markers[0].points.size(), 2u);
+  EXPECT_DOUBLE_EQ(m.markers[0].points[1].z, 6.0);
+  EXPECT_EQ(m.markers[1].ns, "keyframes");
+  ASSERT_EQ(m.markers[1].colors.size(), 2u);
+  EXPECT_NE(m.markers[1].colors[0].r + m.markers[1].colors[0].g + m.markers[1].colors[0].b,
+            m.markers[1].colors[1].r + m.markers[1].colors[1].g + m.markers[1].colors[1].b);
+  EXPECT_EQ(m.markers[2].ns, "cameras");
+  EXPECT_EQ(m.markers[2].id, 2);
+  ASSERT_EQ(m.markers[2].points.size(), 2u);
+  EXPECT_DOUBLE_EQ(m.markers[2].points[1].z, 1.4);  // 0.4 m along the optical axis (z)
+}
+
 TEST(VoShare, ParsesAndValidates) {
   EXPECT_EQ(parseVoShareMode("graph"), VoShareMode::kGraph);
   EXPECT_EQ(parseVoShareMode("direct"), VoShareMode::kDirect);

@@ -1,5 +1,9 @@
 #include "dataset_player.h"
 
+#include "ecar_bridge/camera.h"
+#include "ecar_bridge/geometry.h"
+#include "ecar_bridge/objects.h"
+
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -130,7 +134,7 @@ DatasetPlayer::DatasetPlayer(ros::NodeHandle nh, DatasetPlayerConfig config)
     : config_(std::move(config)),
       topics_{config_.device},
       dataset_(openDataset(config_)),
-      camera_info_(toCameraInfo(dataset_.camera(), std_msgs::Header())),
+      camera_info_(ecar_bridge::toMsg(dataset_.camera(), std_msgs::Header())),
       nh_(std::move(nh)),
       it_(nh_) {
   if (static_cast<size_t>(config_.first_frame) >= dataset_.size()) {
@@ -280,7 +284,7 @@ size_t DatasetPlayer::publishTouches(size_t i, const std_msgs::Header& image_hea
   header.stamp = image_header.stamp;
   header.frame_id = topics_.camera_frame();
   for (size_t k = first; k < last; ++k) {
-    touch_pub_.publish(toTouchMsg(dataset_.touches()[k], header));
+    touch_pub_.publish(ecar_bridge::toMsg(dataset_.touches()[k], header));
   }
   return last - first;
 }
@@ -300,7 +304,7 @@ std_msgs::Header DatasetPlayer::publishFrame(size_t i, const cv::Mat& image) {
   header.stamp = ros::Time::now();
   header.frame_id = topics_.camera_frame();
 
-  const sensor_msgs::ImagePtr image_msg = toImageMsg(image, header);  // throws before publishing
+  const sensor_msgs::ImagePtr image_msg = ecar_bridge::toImageMsg(image, header);  // throws before publishing
   publishImu(i, header);
   camera_info_.header = header;
   info_pub_.publish(camera_info_);
@@ -310,13 +314,13 @@ std_msgs::Header DatasetPlayer::publishFrame(size_t i, const cv::Mat& image) {
   if (frame.T_w_c_gt) {
     std_msgs::Header tf_header = header;
     tf_header.frame_id = config_.world_frame;
-    tf_broadcaster_.sendTransform(toTransform(*frame.T_w_c_gt, tf_header, topics_.gt_frame()));
+    tf_broadcaster_.sendTransform(ecar_bridge::toTransformMsg(*frame.T_w_c_gt, tf_header, topics_.gt_frame()));
   }
   if (frame.T_o_c_odom) {
     geometry_msgs::PoseStamped odom;
     odom.header = header;
     odom.header.frame_id = topics_.odom_frame();
-    odom.pose = toPose(*frame.T_o_c_odom);
+    odom.pose = ecar_bridge::toMsg(*frame.T_o_c_odom);
     odom_pub_.publish(odom);
   }
   return header;
@@ -330,7 +334,7 @@ void DatasetPlayer::publishImu(size_t i, const std_msgs::Header& header) {
     ecar::ImuSample gravity_only;
     gravity_only.timestamp = frame.timestamp;
     gravity_only.acc_c = *frame.gravity_c;
-    sensor_msgs::Imu msg = toImu(gravity_only, header);
+    sensor_msgs::Imu msg = ecar_bridge::toMsg(gravity_only, header);
     msg.angular_velocity_covariance[0] = -1.0;  // no angular rate in this dataset
     imu_pub_.publish(msg);
     return;
@@ -341,7 +345,7 @@ void DatasetPlayer::publishImu(size_t i, const std_msgs::Header& header) {
        ++imu_cursor_) {
     const ecar::ImuSample& sample = imu[imu_cursor_];
     imu_header.stamp = imuStamp(sample.timestamp, frame.timestamp, header.stamp);
-    imu_pub_.publish(toImu(sample, imu_header));
+    imu_pub_.publish(ecar_bridge::toMsg(sample, imu_header));
   }
 }
 

@@ -52,7 +52,7 @@
 #include <tf2_ros/transform_broadcaster.h>
 
 #include "ecar_core/io/dataset.h"
-#include "ecar_sim/conversions.h"
+#include "ecar_bridge/topics.h"
 
 namespace ecar_sim {
 
@@ -133,7 +133,7 @@ class DatasetPlayer {
   void onFrameDone(const std_msgs::UInt32& msg);
 
   DatasetPlayerConfig config_;
-  DeviceTopics topics_;
+  ecar_bridge::DeviceTopics topics_;
   ecar::Dataset dataset_;
   sensor_msgs::CameraInfo camera_info_;  ///< header filled per frame
 

@@ -31,7 +31,10 @@
 #include "ecar_core/sim/motion.h"
 #include "ecar_core/sim/renderer.h"
 #include "ecar_core/sim/scene.h"
-#include "ecar_sim/conversions.h"
+#include "ecar_bridge/camera.h"
+#include "ecar_bridge/geometry.h"
+#include "ecar_bridge/objects.h"
+#include "ecar_bridge/topics.h"
 
 namespace {
 
@@ -148,19 +151,19 @@ class BagWriter {
     h.seq = static_cast<uint32_t>(index);
     h.stamp = stamp;
     h.frame_id = topics_.camera_frame();
-    bag_.write("/" + topics_.image_raw(), stamp, ecar_sim::toImageMsg(image, h));
-    bag_.write("/" + topics_.camera_info(), stamp, ecar_sim::toCameraInfo(camera_, h));
+    bag_.write("/" + topics_.image_raw(), stamp, ecar_bridge::toImageMsg(image, h));
+    bag_.write("/" + topics_.camera_info(), stamp, ecar_bridge::toMsg(camera_, h));
     bag_.write("/" + topics_.imu(), stamp,
-               ecar_sim::toImu(ecar::ImuSample{t, m.gravity_c, m.gyro_c}, h));
+               ecar_bridge::toMsg(ecar::ImuSample{t, m.gravity_c, m.gyro_c}, h));
     std_msgs::Header world = h;
     world.frame_id = "map";
     tf2_msgs::TFMessage tf;
-    tf.transforms.push_back(ecar_sim::toTransform(m.T_w_c, world, topics_.gt_frame()));
+    tf.transforms.push_back(ecar_bridge::toTransformMsg(m.T_w_c, world, topics_.gt_frame()));
     bag_.write("/tf", stamp, tf);
     geometry_msgs::PoseStamped odom;
     odom.header = h;
     odom.header.frame_id = topics_.odom_frame();
-    odom.pose = ecar_sim::toPose(m.T_o_c);
+    odom.pose = ecar_bridge::toMsg(m.T_o_c);
     bag_.write("/" + topics_.odometry(), stamp, odom);
   }
   /// A scripted touch of the frame at dataset time t: header stamp = the
@@ -171,14 +174,14 @@ class BagWriter {
     h.stamp = kEpoch + ros::Duration(t);
     h.frame_id = topics_.camera_frame();
     bag_.write("/" + topics_.touch(), h.stamp + ros::Duration(0, 1000),
-               ecar_sim::toTouchMsg(touch, h));
+               ecar_bridge::toMsg(touch, h));
   }
   void close() { bag_.close(); }
 
  private:
   static inline const ros::Time kEpoch{1000000000, 0};
   rosbag::Bag bag_;
-  ecar_sim::DeviceTopics topics_;
+  ecar_bridge::DeviceTopics topics_;
   ecar::PinholeCamera camera_;
 };
 

@@ -22,19 +22,37 @@ KeyFrameId nearestKeyFrame(const Map& map, const Eigen::Vector3d& p_w) {
   return best;
 }
 
+namespace {
+
+// The keyframe's summary (the map's read lock held).
+void summarise(const Map& map, const KeyFrame& kf, KeyFrameSummary* out) {
+  out->id = kf.id;
+  out->device = kf.device;
+  out->frame_index = kf.frame_index;
+  out->timestamp = kf.timestamp;
+  out->T_w_c = kf.T_w_c();
+  out->gravity_c = kf.features.gravity_c;
+  out->map_epoch = map.epoch();
+}
+
+}  // namespace
+
+std::optional<KeyFrameSummary> keyframeSummary(const Map& map, KeyFrameId id) {
+  auto lock = map.readLock();
+  const KeyFrame* kf = map.keyframe(id);
+  if (!kf || kf->bad) return std::nullopt;
+  KeyFrameSummary out;
+  summarise(map, *kf, &out);
+  return out;
+}
+
 std::optional<KeyFrameNeighbourhood> keyframeNeighbourhood(const Map& map, KeyFrameId id,
                                                            size_t neighbours) {
   auto lock = map.readLock();
   const KeyFrame* kf = map.keyframe(id);
   if (!kf || kf->bad) return std::nullopt;
   KeyFrameNeighbourhood out;
-  out.id = id;
-  out.device = kf->device;
-  out.frame_index = kf->frame_index;
-  out.timestamp = kf->timestamp;
-  out.T_w_c = kf->T_w_c();
-  out.gravity_c = kf->features.gravity_c;
-  out.map_epoch = map.epoch();
+  summarise(map, *kf, &out);
   std::vector<KeyFrameId> kfs = map.bestCovisible(id, neighbours);
   kfs.push_back(id);
   std::unordered_set<MapPointId> seen;

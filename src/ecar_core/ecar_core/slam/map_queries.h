@@ -25,8 +25,8 @@ namespace ecar {
 /// map has none or p_w is not finite.
 KeyFrameId nearestKeyFrame(const Map& map, const Eigen::Vector3d& p_w);
 
-/// A keyframe and the map points around it, copied in one read.
-struct KeyFrameNeighbourhood {
+/// What a keyframe is, copied out of the map.
+struct KeyFrameSummary {
   KeyFrameId id;
   DeviceId device;
   uint32_t frame_index = 0;
@@ -34,6 +34,13 @@ struct KeyFrameNeighbourhood {
   SE3 T_w_c = SE3::Identity();
   std::optional<Eigen::Vector3d> gravity_c;  ///< its upload's specific force, camera frame
   uint32_t map_epoch = 0;
+};
+
+/// nullopt when the keyframe is unknown or was culled.
+std::optional<KeyFrameSummary> keyframeSummary(const Map& map, KeyFrameId id);
+
+/// A keyframe and the map points around it, copied in one read.
+struct KeyFrameNeighbourhood : KeyFrameSummary {
   /// Live map points of the keyframe and of its `neighbours` best covisible
   /// keyframes, each once: (id, position).
   std::vector<std::pair<MapPointId, Eigen::Vector3d>> points;

@@ -97,6 +97,11 @@ TEST_F(PlaneSegmentationTest, MapQueriesCopyWhatTheModulesNeed) {
   EXPECT_EQ(n->map_epoch, graph.epoch());
   EXPECT_EQ(keyframeNeighbourhood(map, kf2, 0)->points.size(), num_points / 2);
   EXPECT_FALSE(keyframeNeighbourhood(map, KeyFrameId(42), 10));
+  const std::optional<KeyFrameSummary> s1 = keyframeSummary(map, kf1);
+  ASSERT_TRUE(s1);
+  EXPECT_TRUE(s1->gravity_c.has_value());
+  EXPECT_TRUE(s1->T_w_c.isApprox(lookingAlongX(0.0)));
+  EXPECT_FALSE(keyframeSummary(map, KeyFrameId(42)));
   EXPECT_EQ(nearestKeyFrame(map, Eigen::Vector3d(2.0, 0.0, 1.5)), kf2);
   EXPECT_EQ(nearestKeyFrame(map, Eigen::Vector3d(-5.0, 0.0, 1.5)), kf1);
   EXPECT_FALSE(nearestKeyFrame(map, Eigen::Vector3d(NAN, 0.0, 0.0)).valid());

@@ -39,6 +39,7 @@
 #include <vector>
 
 #include <geometry_msgs/PoseStamped.h>
+#include <image_transport/image_transport.h>
 #include <ros/callback_queue.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
@@ -80,6 +81,15 @@ struct DeviceConfig {
   /// ~direct_objects_topic: VO states the server relays straight to this device
   /// (vo_share: direct), relative to the device's namespace
   std::string direct_objects_topic = "objects";
+  /// ~image_transport: transport of camera/image_raw ("raw", "compressed", ...;
+  /// any image_transport plugin installed)
+  std::string image_transport = "raw";
+  /// ~ar_view/...: what ar_view draws over the camera image (live-tunable)
+  struct ArView {
+    bool draw_points = true;   ///< ~ar_view/draw_points: the tracked keypoints
+    bool draw_objects = true;  ///< ~ar_view/draw_objects: the VOs held and strokes in flight
+    bool draw_status = true;   ///< ~ar_view/draw_status: the status line on top
+  } ar_view;
   ecar::DeviceTrackerConfig tracker;  ///< ~keyframe_queue, ~tracking/..., ~orb/...
   ecar::DeviceObjectsConfig objects;  ///< ~objects/... (touches, VOs, drawing)
 
@@ -101,9 +111,10 @@ DeviceConfig loadDeviceConfig(const ros::NodeHandle& pnh, const std::string& ns)
 
 class Device {
  public:
-  /// `nh` resolves topics in the device's namespace. Starts the connection
-  /// thread (its own callback queue) at once.
-  Device(const ros::NodeHandle& nh, const DeviceConfig& config);
+  /// `nh` resolves topics in the device's namespace, `pnh` is its private
+  /// namespace (parameters). Starts the connection thread (its own callback
+  /// queue) at once.
+  Device(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const DeviceConfig& config);
   ~Device();
   Device(const Device&) = delete;
   Device& operator=(const Device&) = delete;
@@ -143,13 +154,13 @@ class Device {
   /// Drops pending frames older than ~reconnect_timeout (their graph is lost).
   void prunePending(const ros::Time& now);
   void changeEpoch(uint32_t epoch, const char* why);
-  /// Takes the planes and VOs of a local graph (bad entries are skipped with a warning).
-  void applyGraphObjects(const ecar_msgs::LocalGraph& msg);
   /// Draws the held VOs and pending strokes into ar_image_ from T_w_c (bgr8).
   void drawObjects(const ecar::SE3& T_w_c);
+  /// Draws the status line (device, frame, tracking, counts) on top of ar_image_.
+  void drawStatus(const ecar::DeviceTrackResult& r);
 
   DeviceConfig config_;
-  ros::NodeHandle nh_;
+  ros::NodeHandle nh_, pnh_;
   std::string camera_frame_;
 
   mutable std::mutex mutex_;                      ///< guards everything below
@@ -187,14 +198,16 @@ class Device {
   ecar::DeviceObjects objects_;
   std::vector<ecar::VoRequest> requests_;     ///< scratch of onTouch
   std::vector<ecar::ScreenLine> draw_lines_;  ///< scratch of drawObjects
-  std::vector<ecar::Plane> graph_planes_;     ///< scratch of applyGraphObjects
-  std::vector<ecar::VirtualObject> graph_objects_;
+  std::vector<ecar::VirtualObject> graph_objects_;  ///< scratch of onDirectObject
   std::string interaction_topic_;
 
+  image_transport::ImageTransport image_transport_;
   ros::Publisher upload_pub_, pose_pub_, device_frame_pub_, metrics_pub_, global_metrics_pub_,
-      ar_view_pub_, frame_done_pub_, interaction_pub_;
-  ros::Subscriber image_sub_, info_sub_, imu_sub_, odometry_sub_, graph_sub_, touch_sub_,
-      result_sub_, direct_objects_sub_;
+      frame_done_pub_, interaction_pub_;
+  image_transport::Publisher ar_view_pub_;
+  image_transport::Subscriber image_sub_;
+  ros::Subscriber info_sub_, imu_sub_, odometry_sub_, graph_sub_, touch_sub_, result_sub_,
+      direct_objects_sub_;
   tf2_ros::TransformBroadcaster tf_;
   ros::SteadyTimer pace_timer_;
 

@@ -5,12 +5,9 @@
 
 #include <string>
 
-#include "ecar_core/structure/grid_caster.h"
-#include "ecar_core/structure/grid_map.h"
-#include "ecar_core/sync/local_graph.h"
-#include "ecar_core/structure/plane_map.h"
-#include "ecar_core/slam/slam_system.h"
-#include "ecar_core/structure/vo_store.h"
+#include "ecar_core/server/global_graph.h"
+#include "ecar_core/server/grid_connection.h"
+#include "ecar_core/sync/local_graph_composer.h"
 
 namespace ecar_server {
 
@@ -83,10 +80,17 @@ struct ServerConfig {
   /// Besides the planes hit from the aligned pose, a local graph carries the
   /// planes linked to the frame's local keyframes.
   bool graph_keyframe_planes = true;
-  /// A plane the device was sent at its current version is sent again only
+  /// A plane the device was sent at its current shape is sent again only
   /// after this many of its local graphs (a refresh in case a graph was lost);
-  /// a new or re-estimated plane goes out at once. 1 = in every graph.
+  /// a new or visibly re-estimated plane goes out at once. 1 = in every graph.
   int graph_plane_refresh = 10;
+  /// A plane the device holds is resent at once when its normal turned by more
+  /// than plane_resend_angle_deg, its offset moved more than
+  /// plane_resend_offset (m) or a corner of its bounding box more than
+  /// plane_resend_extent (m) (yaml planes.resend_*).
+  double plane_resend_angle_deg = 1.0;
+  double plane_resend_offset = 0.02;
+  double plane_resend_extent = 0.25;
 
   /// Throws ecar::Error naming the first invalid key.
   void validate() const;
@@ -94,7 +98,12 @@ struct ServerConfig {
   VoShareMode voShare() const { return parseVoShareMode(vo_share); }
   /// SLAM options (mapping on its own thread).
   ecar::SlamConfig slamConfig() const;
-  ecar::LocalGraphConfig localGraphConfig() const;
+  /// The global graph's options; `first_epoch` is its map epoch before any load.
+  ecar::GlobalGraphConfig graphConfig(uint32_t first_epoch) const;
+  /// What goes in local graphs (the resend tolerances and refresh).
+  ecar::LocalGraphComposerConfig composerConfig() const;
+  /// The grid connection's options (keyframe planes, objects looked for).
+  ecar::GridConnectionConfig gridConnectionConfig() const;
 
  private:
   static ecar::VoStoreConfig defaultVoConfig() {

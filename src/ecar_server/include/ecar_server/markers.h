@@ -12,10 +12,10 @@
 #include <visualization_msgs/MarkerArray.h>
 
 #include "ecar_core/common/geometry.h"
-#include "ecar_core/slam/map.h"
-#include "ecar_core/structure/plane_map.h"
 #include "ecar_core/common/types.h"
-#include "ecar_core/structure/vo_store.h"
+#include "ecar_core/slam/map_queries.h"
+#include "ecar_core/structure/plane.h"
+#include "ecar_core/structure/virtual_object.h"
 
 namespace ecar_server {
 
@@ -31,9 +31,8 @@ std_msgs::ColorRGBA deviceColour(ecar::DeviceId id);
 
 /// Markers in frame `frame`: ns "map_points" (POINTS, grey), ns "keyframes"
 /// (CUBE_LIST of keyframe centres, per-device colours), ns "cameras" (one
-/// ARROW along each camera's optical axis, id = device id). Takes the map's
-/// read lock.
-visualization_msgs::MarkerArray mapMarkers(const ecar::Map& map,
+/// ARROW along each camera's optical axis, id = device id).
+visualization_msgs::MarkerArray mapMarkers(const ecar::MapOverview& map,
                                            const std::vector<CameraMarker>& cameras,
                                            const std::string& frame, const ros::Time& stamp);
 

@@ -1,40 +1,40 @@
-// The one place where the server's parameters are read from rosparam.
+// The one place where the server's parameters are read from rosparam, and the
+// process-wide global graph the nodelets of one manager share.
 #pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
 
 #include <ros/node_handle.h>
 
+#include "ecar_core/server/global_graph.h"
 #include "ecar_server/config.h"
 
 namespace ecar_server {
 
-/// Reads every ServerConfig key from `nh` (the manager's namespace, e.g.
-/// /edge_server), keeping the in-class default for absent keys, and validates.
-/// Throws ecar::Error naming the key when a value has the wrong type or range.
+/// The server's config from a struct of parameters (as rosparam holds the
+/// manager's namespace; config/server.yaml's layout), keeping the in-class
+/// default for absent keys, validated. `name` prefixes keys in errors (e.g.
+/// "/edge_server/"). The keys it does not know go to *unknown (nested ones
+/// joined with '/'; may be null). Throws ecar::Error naming the key when a
+/// value has the wrong type or range.
+ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::string& name,
+                               std::vector<std::string>* unknown);
+
+/// Reads the config from `nh` (the manager's namespace, e.g. /edge_server).
+/// Throws ecar::Error naming the key as parseServerConfig does, and when the
+/// namespace holds a key the server does not know (a misspelt key would
+/// otherwise be ignored silently); the manager's own num_worker_threads, the
+/// startup map_file and the nodelets' private namespaces are allowed.
 ServerConfig loadServerConfig(const ros::NodeHandle& nh);
 
-/// Topic names of one device, built in one place (absolute, as Connect answers them).
-struct DeviceTopicNames {
-  std::string device;
-  std::string upload() const { return "/" + device + "/upload"; }
-  std::string localGraph() const { return "/" + device + "/local_graph"; }
-  std::string interaction() const { return "/" + device + "/interaction"; }
-  std::string interactionResult() const { return "/" + device + "/interaction_result"; }
-  /// vo_share direct: VO states relayed to the device (its ~direct_objects_topic).
-  std::string objects() const { return "/" + device + "/objects"; }
-  std::string cameraServerFrame() const { return device + "/camera_server"; }
-};
-
-/// Server-wide topics and services (absolute; remappable).
-constexpr const char* kConnectService = "/ecar/connect";
-constexpr const char* kDisconnectService = "/ecar/disconnect";
-constexpr const char* kTrackedFrameTopic = "/ecar/tracked_frame";
-constexpr const char* kKeyFrameMappedTopic = "/ecar/keyframe_mapped";
-constexpr const char* kMarkersTopic = "/ecar/markers";
-/// Every accepted VO change (the state after it, tombstones included), in order.
-constexpr const char* kObjectsTopic = "/ecar/objects";
-/// Namespace of the interactive marker server of the VOs (rviz InteractiveMarkers display).
-constexpr const char* kVoMarkersTopic = "/ecar/vo_markers";
-constexpr const char* kMapFrame = "map";
+/// The global graph shared by the nodelets of one manager (`key`: its
+/// namespace), created with `config` by the first caller (its map epoch starts
+/// at the wall clock's milliseconds, so a restarted server has another);
+/// later callers share it. It lives while someone holds it. Throws ecar::Error
+/// when it cannot be created (e.g. the VO database cannot be opened).
+std::shared_ptr<ecar::GlobalGraph> sharedGraph(const std::string& key, const ServerConfig& config);
 
 /// Seconds on a monotonic clock (device timeouts).
 double steadySeconds();

@@ -1,56 +1,67 @@
-// Interactions: subscribes /<device>/interaction for every connected device,
-// applies each REGISTER / MANIPULATE / DELETE to the shared VoStore (which
-// commits it to SQLite before answering) and answers on
-// /<device>/interaction_result: accepted with the object's id and version, or
-// rejected with the store's reason. In vo_attach keyframe mode a registration
-// hangs on the keyframe nearest to the object. A point from rviz's Publish
-// Point tool (/clicked_point, frame "map") registers an ANCHOR owned by "rviz",
-// and dragging a VO's interactive marker (/ecar/vo_markers) manipulates it as
-// the user "rviz" (VoMarkerServer).
-//
+// GridConnection (core: ecar::GridConnection): the 0.1 m grid that connects
+// keyframes, virtual objects and aligned uploads.
+// - /ecar/keyframe_planes: links each segmented keyframe to the cells it sees,
+//   and narrows the VO map bounds to the map's extent.
+// - /<device>/interaction (every connected device): REGISTER / MANIPULATE /
+//   DELETE applied to the VO store (which commits it to SQLite before
+//   answering) and attached to the object's cells; answered on
+//   /<device>/interaction_result: accepted with the object's id and version, or
+//   rejected with the store's reason. rviz's Publish Point tool
+//   (/clicked_point, frame "map") registers an ANCHOR owned by "rviz", and
+//   dragging a VO's interactive marker (/ecar/vo_markers) manipulates it as
+//   "rviz" (VoMarkerServer).
+// - /ecar/tracked_frame: the planes, objects and cells visible from each
+//   aligned upload, on /ecar/visible_structure (the tracked frame inside) for
+//   GraphPublisher and the Visualizer.
 // Every accepted change's resulting state (tombstones included) is published
-// on /ecar/objects, in version order per object (the timeline measurement
-// tools read). With vo.share "direct" it is also relayed on /<device>/objects
-// to every connected device but the one that made it (local graphs then carry
-// no objects: GraphPublisher); a device subscribing to it (a late joiner)
-// first gets every live object.
+// on /ecar/objects, in version order per object. With vo.share "direct" it is
+// also relayed on /<device>/objects to every connected device but the one that
+// made it (and visible structure carries no objects); a device subscribing to
+// it (a late joiner) first gets every live object.
 #include <atomic>
-#include <limits>
 #include <map>
 #include <memory>
 #include <mutex>
 
 #include <ecar_msgs/Interaction.h>
 #include <ecar_msgs/InteractionResult.h>
+#include <ecar_msgs/KeyFramePlanes.h>
+#include <ecar_msgs/TrackedFrame.h>
 #include <ecar_msgs/VirtualObject.h>
+#include <ecar_msgs/VisibleStructure.h>
 #include <geometry_msgs/PointStamped.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 #include <boost/make_shared.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
+#include "ecar_bridge/geometry.h"
+#include "ecar_bridge/objects.h"
+#include "ecar_bridge/server_pipeline.h"
+#include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
-#include "ecar_server/conversions.h"
+#include "ecar_core/server/grid_connection.h"
 #include "ecar_server/ros_params.h"
-#include "ecar_server/server_context.h"
 #include "ecar_server/vo_marker_server.h"
 
 namespace ecar_server {
 
-class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
+class GridConnectionNodelet : public nodelet::Nodelet, public ecar::GraphListener {
  public:
-  ~InteractionsNodelet() override {
+  ~GridConnectionNodelet() override {
     clicked_sub_.shutdown();
+    tracked_sub_.shutdown();
+    planes_sub_.shutdown();
     marker_timer_.stop();
     markers_.reset();
-    if (ctx_) ctx_->removeListener(this);
+    if (graph_) graph_->removeListener(this);
     std::lock_guard<std::mutex> lock(mutex_);
     devices_.clear();
   }
 
-  void onDeviceAdded(const DeviceInfo& device) override {
+  void onDeviceAdded(const ecar::DeviceInfo& device) override {
     ros::NodeHandle& nh = getMTNodeHandle();
-    const DeviceTopicNames topics{device.name};
+    const ecar_bridge::DeviceTopics topics{device.name};
     Topics t;
     t.result = nh.advertise<ecar_msgs::InteractionResult>(topics.interactionResult(), 50);
     const std::string name = device.name;
@@ -69,7 +80,7 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
     devices_[device.name] = t;
   }
 
-  void onDeviceRemoved(const DeviceInfo& device) override {
+  void onDeviceRemoved(const ecar::DeviceInfo& device) override {
     std::lock_guard<std::mutex> lock(mutex_);
     devices_.erase(device.name);
   }
@@ -84,32 +95,78 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
   void onInit() override {
     ros::NodeHandle& nh = getMTNodeHandle();
     const ServerConfig config = loadServerConfig(nh);
-    ctx_ = ServerContext::get(nh.getNamespace(), config);
-    share_ = ctx_->config().voShare();
-    // Opens the database now: a bad file stops the server at start, naming it.
-    const ecar::VoStore& store = ctx_->structure().vos();
+    graph_ = sharedGraph(nh.getNamespace(), config);
+    grid_ = std::make_unique<ecar::GridConnection>(graph_.get(), config.gridConnectionConfig());
+    share_ = config.voShare();
+    const ecar::VoStore& store = graph_->vos();
     NODELET_INFO("virtual objects: %zu stored (%zu live) in %s, vo_attach %s", store.numObjects(),
                  store.numLive(), store.config().database_path.c_str(),
                  ecar::toString(store.attachMode()));
     NODELET_INFO("virtual objects: vo_share %s; every change on %s", toString(share_),
-                 kObjectsTopic);
-    objects_pub_ = nh.advertise<ecar_msgs::VirtualObject>(kObjectsTopic, kObjectsQueue);
-    ctx_->addListener(this);
-    clicked_sub_ = nh.subscribe(kClickedPointTopic, 10, &InteractionsNodelet::onClickedPoint, this);
+                 ecar_bridge::kObjectsTopic);
+    objects_pub_ = nh.advertise<ecar_msgs::VirtualObject>(ecar_bridge::kObjectsTopic, kObjectsQueue);
+    visible_pub_ =
+        nh.advertise<ecar_msgs::VisibleStructure>(ecar_bridge::kVisibleStructureTopic, 100);
+    graph_->addListener(this);
+    clicked_sub_ = nh.subscribe(ecar_bridge::kClickedPointTopic, 10,
+                                &GridConnectionNodelet::onClickedPoint, this);
+    // One subscription each: keyframes are linked in order; tracked frames one
+    // at a time (each device's in order).
+    planes_sub_ = nh.subscribe(ecar_bridge::kKeyFramePlanesTopic, 200,
+                               &GridConnectionNodelet::onKeyFramePlanes, this);
+    tracked_sub_ = nh.subscribe(ecar_bridge::kTrackedFrameTopic, 100,
+                                &GridConnectionNodelet::onTrackedFrame, this,
+                                ros::TransportHints().tcpNoDelay());
     markers_ = std::make_unique<VoMarkerServer>(
-        nh, kVoMarkersTopic, kMapFrame, ctx_->config().vo_marker_drag_rate,
-        [this](ecar::ObjectId id) { return ctx_->structure().vos().get(id); },
+        nh, ecar_bridge::kVoMarkersTopic, ecar_bridge::kMapFrame, config.vo_marker_drag_rate,
+        [this](ecar::ObjectId id) { return graph_->vos().get(id); },
         [this](ecar::ObjectId id, uint32_t base_version, const ecar::VirtualObject& state) {
-          VoRequest request;
+          ecar::VoRequest request;
           request.device = kRvizUser;
-          request.type = VoRequest::Type::kManipulate;
-          request.object = id;
+          request.type = ecar::VoRequestType::kManipulate;
+          request.object_id = id;
           request.base_version = base_version;
-          request.state = state;
+          request.object = state;
           return applyAndShare(request);
         });
     marker_timer_ = nh.createWallTimer(ros::WallDuration(kMarkerSyncPeriod),
-                                       &InteractionsNodelet::onMarkerTimer, this);
+                                       &GridConnectionNodelet::onMarkerTimer, this);
+  }
+
+  // Keyframe-cell links of a segmented keyframe; the VO bounds follow the map.
+  void onKeyFramePlanes(const ecar_msgs::KeyFramePlanes::ConstPtr& msg) {
+    try {
+      const size_t cells = grid_->linkKeyFrame(ecar_bridge::fromMsg(*msg));
+      NODELET_DEBUG("keyframe %u: %zu cells", msg->keyframe_id, cells);
+      graph_->updateVoBounds();
+    } catch (const ecar::Error& e) {
+      NODELET_WARN_THROTTLE(5.0, "device %s: keyframe %u: %s", msg->device_id.c_str(),
+                            msg->keyframe_id, e.what());
+    }
+  }
+
+  // What an aligned upload sees, forwarded with its tracked frame.
+  void onTrackedFrame(const ecar_msgs::TrackedFrame::ConstPtr& msg) {
+    auto out = boost::make_shared<ecar_msgs::VisibleStructure>();
+    out->frame = *msg;
+    try {
+      const ecar::VisibleStructure v = grid_->visible(ecar_bridge::fromMsg(*msg));
+      ecar_bridge::toMsg(v, out.get());
+      ++stats_count_;
+      stats_sum_ms_ += v.milliseconds;
+      stats_max_ms_ = std::max(stats_max_ms_, v.milliseconds);
+      NODELET_INFO_THROTTLE(5.0,
+                            "planes and objects per upload: %.2f ms mean, %.2f ms max over %zu "
+                            "uploads (last: %s frame %u, %zu planes, %zu objects visible)",
+                            stats_sum_ms_ / stats_count_, stats_max_ms_, stats_count_,
+                            msg->device_id.c_str(), msg->frame_index, v.planes.size(),
+                            v.objects.size());
+    } catch (const ecar::Error& e) {
+      NODELET_WARN_THROTTLE(5.0, "device %s: no planes or objects for frame %u: %s",
+                            msg->device_id.c_str(), msg->frame_index, e.what());
+      out->objects_in_graph = false;
+    }
+    visible_pub_.publish(out);
   }
 
   // Markers follow the store: at once after changes, and now and then in any
@@ -121,24 +178,24 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
     if (changes == synced_changes_ && ++idle_ticks_ < kMarkerFullSyncTicks) return;
     idle_ticks_ = 0;
     synced_changes_ = changes;
-    markers_->sync(ctx_->structure().vos().allObjects());
+    markers_->sync(graph_->vos().allObjects());
   }
 
   // rviz's Publish Point tool: a new ANCHOR at the clicked point.
   void onClickedPoint(const geometry_msgs::PointStamped::ConstPtr& msg) {
-    if (!msg->header.frame_id.empty() && msg->header.frame_id != kMapFrame) {
+    if (!msg->header.frame_id.empty() && msg->header.frame_id != ecar_bridge::kMapFrame) {
       NODELET_WARN_THROTTLE(2.0, "rviz: clicked point in frame '%s', not '%s': ignored",
-                            msg->header.frame_id.c_str(), kMapFrame);
+                            msg->header.frame_id.c_str(), ecar_bridge::kMapFrame);
       return;
     }
-    VoRequest request;
+    ecar::VoRequest request;
     request.device = kRvizUser;
-    request.state.kind = ecar::VoKind::kAnchor;
-    request.state.position = Eigen::Vector3d(msg->point.x, msg->point.y, msg->point.z);
-    request.state.r = 255;
-    request.state.g = 200;
-    request.state.b = 0;
-    request.state.width = 0.1f;
+    request.object.kind = ecar::VoKind::kAnchor;
+    request.object.position = ecar_bridge::fromMsg(msg->point);
+    request.object.r = 255;
+    request.object.g = 200;
+    request.object.b = 0;
+    request.object.width = 0.1f;
     const ecar::VoOutcome outcome = applyAndShare(request);
     if (outcome.accepted) {
       NODELET_INFO("rviz: object %u registered at (%.2f, %.2f, %.2f)", outcome.id.value,
@@ -156,7 +213,7 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
       if (it == devices_.end()) return;  // disconnected meanwhile
       pub = it->second.result;
     }
-    VoRequest request;
+    ecar::VoRequest request;
     request.device = device;
     request.request_id = msg.request_id;
     ecar::VoOutcome outcome;
@@ -164,7 +221,7 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
       outcome.reason = "device_id '" + msg.device_id + "' is not this topic's device";
     } else {
       try {
-        request = fromMsg(msg);
+        request = ecar_bridge::fromMsg(msg);
         request.device = device;
         outcome = applyAndShare(request);
       } catch (const ecar::Error& e) {
@@ -176,10 +233,11 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
                             device.c_str(), msg.request_id, msg.type, msg.object_id,
                             outcome.reason.c_str());
     }
-    auto result = boost::make_shared<ecar_msgs::InteractionResult>(toMsg(request, outcome));
-    result->device_id = device;
-    result->header.stamp = ros::Time::now();
-    pub.publish(result);
+    std_msgs::Header header;
+    header.frame_id = ecar_bridge::kMapFrame;
+    header.stamp = ros::Time::now();
+    pub.publish(boost::make_shared<ecar_msgs::InteractionResult>(
+        ecar_bridge::toMsg(ecar::resultOf(request, outcome), header)));
   }
 
   // Direct sharing to a new subscriber of /<device>/objects: every live object,
@@ -188,9 +246,9 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
   void sendLiveObjects(const std::string& device, const ros::SingleSubscriberPublisher& pub) {
     std::lock_guard<std::mutex> lock(apply_mutex_);
     size_t sent = 0;
-    for (const auto& vo : ctx_->structure().vos().allObjects()) {
+    for (const auto& vo : graph_->vos().allObjects()) {
       if (vo.deleted) continue;
-      pub.publish(toMsg(vo));
+      pub.publish(ecar_bridge::toMsg(vo));
       ++sent;
     }
     NODELET_INFO("vo_share direct: sent %zu live objects to %s (subscriber %s)", sent,
@@ -201,14 +259,14 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
   // /ecar/objects and, with vo_share direct, on /<device>/objects of every
   // other connected device. Serialised, so an object's states go out in
   // version order.
-  ecar::VoOutcome applyAndShare(const VoRequest& r) {
+  ecar::VoOutcome applyAndShare(const ecar::VoRequest& r) {
     std::lock_guard<std::mutex> lock(apply_mutex_);
-    const ecar::VoOutcome outcome = apply(r);
+    const ecar::VoOutcome outcome = grid_->apply(r);
     if (!outcome.accepted) return outcome;
     ++changes_;
-    const std::optional<ecar::VirtualObject> vo = ctx_->structure().vos().get(outcome.id);
+    const std::optional<ecar::VirtualObject> vo = graph_->vos().get(outcome.id);
     if (!vo) return outcome;
-    const auto msg = boost::make_shared<ecar_msgs::VirtualObject>(toMsg(*vo));
+    const auto msg = boost::make_shared<ecar_msgs::VirtualObject>(ecar_bridge::toMsg(*vo));
     objects_pub_.publish(msg);
     if (share_ == VoShareMode::kDirect) {
       std::lock_guard<std::mutex> devices_lock(mutex_);
@@ -219,46 +277,6 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
     return outcome;
   }
 
-  ecar::VoOutcome apply(const VoRequest& r) {
-    ecar::VoStore& store = ctx_->structure().vos();
-    switch (r.type) {
-      case VoRequest::Type::kRegister: {
-        ecar::VirtualObject vo = r.state;
-        vo.owner = r.device;
-        ecar::KeyFrameId keyframe;
-        if (store.attachMode() == ecar::VoAttachMode::kKeyFrame) keyframe = nearestKeyFrame(vo);
-        return store.registerObject(vo, keyframe);
-      }
-      case VoRequest::Type::kManipulate:
-        return store.manipulate(r.object, r.base_version, r.state, r.device);
-      case VoRequest::Type::kDelete:
-        return store.remove(r.object, r.base_version, r.device);
-    }
-    return {};
-  }
-
-  // The live keyframe whose camera centre is nearest to the object's position
-  // (invalid when there is none or the position is not finite).
-  ecar::KeyFrameId nearestKeyFrame(const ecar::VirtualObject& vo) const {
-    const std::shared_ptr<ecar::SlamSystem> slam = ctx_->slam();
-    if (!slam || !vo.position.allFinite()) return {};
-    const ecar::Map& map = slam->map();
-    auto lock = map.readLock();
-    ecar::KeyFrameId best;
-    double best_d2 = std::numeric_limits<double>::max();
-    for (const auto& id : map.keyframeIds()) {
-      const ecar::KeyFrame* kf = map.keyframe(id);
-      if (!kf || kf->bad) continue;
-      const double d2 = (kf->center() - vo.position).squaredNorm();
-      if (d2 < best_d2) {
-        best_d2 = d2;
-        best = id;
-      }
-    }
-    return best;
-  }
-
-  static constexpr const char* kClickedPointTopic = "/clicked_point";
   static constexpr const char* kRvizUser = "rviz";
   /// Publisher queues of /ecar/objects and /<device>/objects: a burst of drags
   /// from many devices must not drop states.
@@ -268,10 +286,11 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
   static constexpr double kMarkerSyncPeriod = 0.1;
   static constexpr int kMarkerFullSyncTicks = 20;
 
-  std::shared_ptr<ServerContext> ctx_;
+  std::shared_ptr<ecar::GlobalGraph> graph_;
+  std::unique_ptr<ecar::GridConnection> grid_;
   VoShareMode share_ = VoShareMode::kGraph;
-  ros::Subscriber clicked_sub_;
-  ros::Publisher objects_pub_;
+  ros::Subscriber clicked_sub_, planes_sub_, tracked_sub_;
+  ros::Publisher objects_pub_, visible_pub_;
   std::unique_ptr<VoMarkerServer> markers_;
   ros::WallTimer marker_timer_;
   std::atomic<uint64_t> changes_{0};  ///< accepted changes made here
@@ -281,8 +300,11 @@ class InteractionsNodelet : public nodelet::Nodelet, public ContextListener {
   std::mutex apply_mutex_;  // serialises applyAndShare; taken before mutex_
   std::mutex mutex_;        // guards devices_
   std::map<std::string, Topics> devices_;
+  // Timing of visible() (the tracked-frame callback runs one at a time).
+  size_t stats_count_ = 0;
+  double stats_sum_ms_ = 0.0, stats_max_ms_ = 0.0;
 };
 
 }  // namespace ecar_server
 
-PLUGINLIB_EXPORT_CLASS(ecar_server::InteractionsNodelet, nodelet::Nodelet)
+PLUGINLIB_EXPORT_CLASS(ecar_server::GridConnectionNodelet, nodelet::Nodelet)

@@ -1,0 +1,118 @@
+#include "ecar_server/config.h"
+
+#include "ecar_core/common/error.h"
+
+namespace ecar_server {
+
+const char* toString(VoShareMode mode) { return mode == VoShareMode::kDirect ? "direct" : "graph"; }
+
+VoShareMode parseVoShareMode(const std::string& text) {
+  if (text == "graph") return VoShareMode::kGraph;
+  if (text == "direct") return VoShareMode::kDirect;
+  throw ecar::Error("unknown vo share mode '" + text + "' (expected 'graph' or 'direct')");
+}
+
+void ServerConfig::validate() const {
+  const auto fail = [](const std::string& key, const std::string& why) {
+    throw ecar::Error("server parameter '" + key + "' " + why);
+  };
+  try {
+    ecar::parseSyncMode(sync_mode);
+  } catch (const ecar::Error&) {
+    fail("sync_mode", "must be 'ecar' or 'edgeslam' (got '" + sync_mode + "')");
+  }
+  if (workers < 1 || workers > 64) fail("workers", "must be in [1, 64]");
+  if (!(device_timeout > 0.0)) fail("device_timeout", "must be > 0 s");
+  if (max_upload_bytes < 1000) fail("max_upload_bytes", "must be >= 1000");
+  if (upload_queue_size < 1) fail("upload_queue_size", "must be >= 1");
+  if (device_queue_size < 1) fail("device_queue_size", "must be >= 1");
+  if (graph_queue_size < 1) fail("graph_queue_size", "must be >= 1");
+  if (keyframe_queue < 1) fail("keyframe_queue", "must be >= 1");
+  if (!(marker_rate >= 0.0) || marker_rate > 100.0) fail("marker_rate", "must be in [0, 100] Hz");
+  if (!(position_tolerance >= 0.0) || position_tolerance > 0.1) {
+    fail("position_tolerance", "must be in [0, 0.1] m");
+  }
+  if (!(position_tolerance_deg >= 0.0) || position_tolerance_deg > 10.0) {
+    fail("position_tolerance_deg", "must be in [0, 10] degrees");
+  }
+  if (!(position_tolerance_depth >= 0.0) || position_tolerance_depth > 1.0) {
+    fail("position_tolerance_depth", "must be in [0, 1]");
+  }
+  if (edgeslam_keyframes < 0) fail("edgeslam_keyframes", "must be >= 0");
+  if (orb_features < 100 || orb_features > 100000) fail("orb_features", "must be in [100, 100000]");
+  if (local_keyframes < 2) fail("local_keyframes", "must be >= 2");
+  if (!(gravity_sigma_deg >= 0.0) || gravity_sigma_deg > 90.0) {
+    fail("gravity_sigma_deg", "must be in [0, 90] degrees");
+  }
+  if (!(camera_tolerance >= 0.0)) fail("camera_tolerance", "must be >= 0");
+  if (graph_plane_refresh < 1) fail("planes/graph_plane_refresh", "must be >= 1");
+  try {
+    composerConfig().validate();
+  } catch (const ecar::Error& e) {
+    fail("planes/resend", e.what());
+  }
+  planes.validate();
+  grid.validate();
+  try {
+    vo.validate();
+  } catch (const ecar::Error& e) {
+    fail("vo", e.what());
+  }
+  if (vo.database_path.empty()) fail("vo.database", "must not be empty");
+  if (!(vo_map_margin >= 0.0)) fail("vo.map_margin", "must be >= 0 m");
+  try {
+    parseVoShareMode(vo_share);
+  } catch (const ecar::Error&) {
+    fail("vo.share", "must be 'graph' or 'direct' (got '" + vo_share + "')");
+  }
+  if (!(vo_marker_drag_rate >= 0.0) || vo_marker_drag_rate > 100.0) {
+    fail("vo.marker_drag_rate", "must be in [0, 100] Hz");
+  }
+}
+
+ecar::SlamConfig ServerConfig::slamConfig() const {
+  ecar::SlamConfig c;
+  c.orb.num_features = orb_features;
+  c.local_keyframes = local_keyframes;
+  c.ba.gravity_sigma_deg = gravity_sigma_deg;
+  c.synchronous_mapping = false;
+  return c;
+}
+
+ecar::GlobalGraphConfig ServerConfig::graphConfig(uint32_t first_epoch) const {
+  ecar::GlobalGraphConfig c;
+  c.slam = slamConfig();
+  c.slam.first_epoch = first_epoch;
+  c.planes = planes;
+  c.grid = grid;
+  c.vo = vo;
+  c.vo.cell_size = grid.cell_size;
+  c.vo_map_margin = vo_map_margin;
+  c.camera_tolerance = camera_tolerance;
+  c.devices.default_mode = syncMode();
+  c.devices.default_keyframe_queue = static_cast<size_t>(keyframe_queue);
+  c.devices.device_timeout = device_timeout;
+  return c;
+}
+
+ecar::LocalGraphComposerConfig ServerConfig::composerConfig() const {
+  ecar::LocalGraphComposerConfig c;
+  c.edgeslam_keyframes = edgeslam_keyframes;
+  c.position_tolerance = position_tolerance;
+  c.position_tolerance_deg = position_tolerance_deg;
+  c.position_tolerance_depth = position_tolerance_depth;
+  c.plane_refresh = graph_plane_refresh;
+  c.plane_resend_angle_deg = plane_resend_angle_deg;
+  c.plane_resend_offset = plane_resend_offset;
+  c.plane_resend_extent = plane_resend_extent;
+  return c;
+}
+
+ecar::GridConnectionConfig ServerConfig::gridConnectionConfig() const {
+  ecar::GridConnectionConfig c;
+  c.keyframe_planes = graph_keyframe_planes;
+  c.objects = voShare() == VoShareMode::kGraph;
+  return c;
+}
+
+}  // namespace ecar_server

@@ -1,0 +1,130 @@
+// The server's parameters: config/server.yaml (every key known, and the
+// documented values are the defaults), wrong types and values naming the key,
+// unknown keys, the configs handed to the core, and the shared global graph.
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "ecar_bridge/params.h"
+#include "ecar_core/common/error.h"
+#include "ecar_server/config.h"
+#include "ecar_server/ros_params.h"
+
+namespace ecar_server {
+namespace {
+
+const std::string kServerYaml = ECAR_REPO_ROOT "/config/server.yaml";
+
+TEST(ServerConfigTest, ShippedYamlHasOnlyKnownKeysWithTheDefaults) {
+  std::vector<std::string> unknown;
+  const ServerConfig c =
+      parseServerConfig(ecar_bridge::paramsFromYaml(kServerYaml), "/edge_server/", &unknown);
+  EXPECT_TRUE(unknown.empty()) << "unknown key in config/server.yaml: " << unknown.front();
+  const ServerConfig d;
+  EXPECT_EQ(c.sync_mode, d.sync_mode);
+  EXPECT_EQ(c.workers, d.workers);
+  EXPECT_DOUBLE_EQ(c.position_tolerance, d.position_tolerance);
+  EXPECT_DOUBLE_EQ(c.position_tolerance_deg, d.position_tolerance_deg);
+  EXPECT_DOUBLE_EQ(c.position_tolerance_depth, d.position_tolerance_depth);
+  EXPECT_EQ(c.graph_plane_refresh, d.graph_plane_refresh);
+  EXPECT_DOUBLE_EQ(c.plane_resend_offset, d.plane_resend_offset);
+  EXPECT_EQ(c.grid.window, d.grid.window);
+  EXPECT_EQ(c.vo_share, d.vo_share);
+  EXPECT_EQ(c.vo.attach_mode, d.vo.attach_mode);
+}
+
+TEST(ServerConfigTest, UnknownKeysAndWrongTypesAreNamed) {
+  XmlRpc::XmlRpcValue params = ecar_bridge::paramsFromYaml(kServerYaml);
+  params["planes"]["graph_plane_refrsh"] = 3;
+  params["workrs"] = 2;
+  std::vector<std::string> unknown;
+  parseServerConfig(params, "/edge_server/", &unknown);
+  EXPECT_EQ(unknown, (std::vector<std::string>{"workrs", "planes/graph_plane_refrsh"}));
+  params["vo"]["share"] = 5;
+  try {
+    parseServerConfig(params, "/edge_server/", nullptr);
+    FAIL() << "accepted";
+  } catch (const ecar::Error& e) {
+    EXPECT_EQ(std::string(e.what()), "/edge_server/vo/share: expected a string");
+  }
+  params["vo"]["share"] = "sideways";
+  try {
+    parseServerConfig(params, "/edge_server/", nullptr);
+    FAIL() << "accepted";
+  } catch (const ecar::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("vo.share"), std::string::npos) << e.what();
+  }
+}
+
+TEST(ServerConfigTest, InvalidValuesNameTheirKey) {
+  const auto expectKey = [](ServerConfig c, const std::string& key) {
+    try {
+      c.validate();
+      FAIL() << key << " accepted";
+    } catch (const ecar::Error& e) {
+      EXPECT_NE(std::string(e.what()).find("'" + key + "'"), std::string::npos) << e.what();
+    }
+  };
+  EXPECT_NO_THROW(ServerConfig().validate());
+  ServerConfig c;
+  c.sync_mode = "fast";
+  expectKey(c, "sync_mode");
+  c = ServerConfig();
+  c.workers = 0;
+  expectKey(c, "workers");
+  c = ServerConfig();
+  c.device_timeout = -1;
+  expectKey(c, "device_timeout");
+  c = ServerConfig();
+  c.max_upload_bytes = 10;
+  expectKey(c, "max_upload_bytes");
+  c = ServerConfig();
+  c.marker_rate = -2;
+  expectKey(c, "marker_rate");
+  c = ServerConfig();
+  c.graph_plane_refresh = 0;
+  expectKey(c, "planes/graph_plane_refresh");
+  c = ServerConfig();
+  c.plane_resend_offset = -1.0;
+  expectKey(c, "planes/resend");
+  EXPECT_FALSE(ServerConfig().slamConfig().synchronous_mapping);
+}
+
+TEST(ServerConfigTest, CoreConfigsCarryTheKeys) {
+  ServerConfig c;
+  c.position_tolerance = 0.003;
+  c.graph_plane_refresh = 4;
+  c.plane_resend_extent = 0.5;
+  c.edgeslam_keyframes = 7;
+  c.device_timeout = 3.0;
+  c.keyframe_queue = 6;
+  c.grid.cell_size = 0.2;
+  c.vo_share = "direct";
+  c.graph_keyframe_planes = false;
+  const ecar::LocalGraphComposerConfig composer = c.composerConfig();
+  EXPECT_DOUBLE_EQ(composer.position_tolerance, 0.003);
+  EXPECT_EQ(composer.plane_refresh, 4);
+  EXPECT_DOUBLE_EQ(composer.plane_resend_extent, 0.5);
+  EXPECT_EQ(composer.edgeslam_keyframes, 7);
+  const ecar::GlobalGraphConfig graph = c.graphConfig(1234);
+  EXPECT_EQ(graph.slam.first_epoch, 1234u);
+  EXPECT_DOUBLE_EQ(graph.devices.device_timeout, 3.0);
+  EXPECT_EQ(graph.devices.default_keyframe_queue, 6u);
+  EXPECT_DOUBLE_EQ(graph.vo.cell_size, 0.2);
+  const ecar::GridConnectionConfig grid = c.gridConnectionConfig();
+  EXPECT_FALSE(grid.objects);  // VOs shared directly
+  EXPECT_FALSE(grid.keyframe_planes);
+}
+
+TEST(ServerConfigTest, OneGraphPerManagerWithAnEpochFromTheClock) {
+  const auto a = sharedGraph("/test_a", ServerConfig());
+  const auto b = sharedGraph("/test_a", ServerConfig());
+  const auto c = sharedGraph("/test_c", ServerConfig());
+  EXPECT_EQ(a.get(), b.get());
+  EXPECT_NE(a.get(), c.get());
+  EXPECT_GT(a->epoch(), 1u);
+}
+
+}  // namespace
+}  // namespace ecar_server
