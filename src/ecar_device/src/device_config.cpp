@@ -91,10 +91,9 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("touch_pose_timeout", &c.touch_pose_timeout);
   r.read("direct_objects_topic", &c.direct_objects_topic);
   r.read("image_transport", &c.image_transport);
-  ecar_bridge::ParamReader& a = r.child("ar_view");
-  a.read("draw_points", &c.ar_view.draw_points);
-  a.read("draw_objects", &c.ar_view.draw_objects);
-  a.read("draw_status", &c.ar_view.draw_status);
+  r.read("draw_points", &c.ar_view.draw_points);
+  r.read("draw_objects", &c.ar_view.draw_objects);
+  r.read("draw_status", &c.ar_view.draw_status);
   r.read("keyframe_queue", &c.tracker.keyframe_queue);
   ecar_bridge::ParamReader& t = r.child("tracking");
   t.read("projection_radius", &c.tracker.projection_radius);

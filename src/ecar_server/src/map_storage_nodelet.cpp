@@ -32,9 +32,9 @@ class MapStorageNodelet : public nodelet::Nodelet {
  private:
   void onInit() override {
     ros::NodeHandle& nh = getMTNodeHandle();
-    graph_ = sharedGraph(nh.getNamespace(), loadServerConfig(nh));
-    std::string map_file;
-    nh.param<std::string>("map_file", map_file, "");
+    const ServerConfig config = loadServerConfig(nh);
+    graph_ = sharedGraph(nh.getNamespace(), config);
+    const std::string& map_file = config.map_file;
     if (!map_file.empty()) {
       std::string message;
       ecar::MapCounts counts;

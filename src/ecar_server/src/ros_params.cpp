@@ -15,11 +15,11 @@ namespace ecar_server {
 namespace {
 
 // Keys of the manager's namespace that are not ServerConfig's: the manager's
-// own thread count, a map to load at startup, and the nodelets' private
-// namespaces (server.launch names them /edge_server/<module>).
+// own thread count and the nodelets' private namespaces (server.launch names
+// them /edge_server/<module>).
 const std::vector<std::string> kManagerKeys = {
-    "num_worker_threads", "map_file",        "device_registry", "tracking",   "local_mapping",
-    "plane_segmentation", "grid_connection", "graph_publisher", "visualizer", "map_storage"};
+    "num_worker_threads", "device_registry", "tracking",   "local_mapping", "plane_segmentation",
+    "grid_connection",    "graph_publisher", "visualizer", "map_storage"};
 
 // "~/..." is the home directory (ROS params do not expand it).
 std::string expandHome(const std::string& path) {
@@ -51,6 +51,8 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("local_keyframes", &c.local_keyframes);
   r.read("gravity_sigma_deg", &c.gravity_sigma_deg);
   r.read("camera_tolerance", &c.camera_tolerance);
+  r.read("map_file", &c.map_file);
+  c.map_file = expandHome(c.map_file);
 
   ecar::PlaneConfig& p = c.planes;
   ecar_bridge::ParamReader& planes = r.child("planes");

@@ -84,11 +84,11 @@ struct DeviceConfig {
   /// ~image_transport: transport of camera/image_raw ("raw", "compressed", ...;
   /// any image_transport plugin installed)
   std::string image_transport = "raw";
-  /// ~ar_view/...: what ar_view draws over the camera image (live-tunable)
+  /// What ar_view draws over the camera image.
   struct ArView {
-    bool draw_points = true;   ///< ~ar_view/draw_points: the tracked keypoints
-    bool draw_objects = true;  ///< ~ar_view/draw_objects: the VOs held and strokes in flight
-    bool draw_status = true;   ///< ~ar_view/draw_status: the status line on top
+    bool draw_points = true;   ///< ~draw_points: the tracked keypoints
+    bool draw_objects = true;  ///< ~draw_objects: the VOs held and strokes in flight
+    bool draw_status = true;   ///< ~draw_status: the status line on top
   } ar_view;
   ecar::DeviceTrackerConfig tracker;  ///< ~keyframe_queue, ~tracking/..., ~orb/...
   ecar::DeviceObjectsConfig objects;  ///< ~objects/... (touches, VOs, drawing)

@@ -92,6 +92,9 @@ struct ServerConfig {
   double plane_resend_offset = 0.02;
   double plane_resend_extent = 0.25;
 
+  /// A map file (written by /ecar/save_map) to load at startup; "" = none.
+  std::string map_file;
+
   /// Throws ecar::Error naming the first invalid key.
   void validate() const;
   ecar::SyncMode syncMode() const { return ecar::parseSyncMode(sync_mode); }
