@@ -32,6 +32,7 @@ import rostest
 import yaml
 from ecar_msgs.msg import DeviceFrame, InteractionResult, LocalGraph, VirtualObject
 from ecar_sim import vo_metrics as vm
+from ecar_sim.alignment import Similarity, umeyama
 from std_msgs.msg import Bool
 
 PKG = "ecar_sim"
@@ -143,7 +144,7 @@ class VoSharingTest(unittest.TestCase):
             records.append(vm.DeviceRecord(d, camera, self.device_frames[d], gt,
                                            self.graph_walls[d]))
         self.assertGreater(len(self.server["receiver"]), 5, "the receiver never joined the map")
-        sim = vm.Similarity(*vm.umeyama(src, dst))
+        sim = Similarity(*umeyama(src, dst))
 
         # Each VO where it was drawn: floor line at x = 15, wall line at y = 2.4, x = 16.5. Along
         # the corridor the tolerance is wider on the wall: the touch ray meets it at about 15

@@ -1,6 +1,7 @@
 """Virtual-object (VO) sync metrics of one session, computed against ground truth.
 
-Used by `run_session`; ROS-free so it can be tested on synthetic inputs.
+Used by `run_session`; needs no running ROS, so it is tested on synthetic inputs
+(test/vo_metrics_test.py). The plane check is in `plane_metrics`, the fit in `alignment`.
 
 Definitions (all times are wall-clock seconds on the session's one machine):
 
@@ -43,57 +44,15 @@ import math
 import os
 
 import numpy as np
+from ecar_msgs.msg import DeviceFrame, VirtualObject
+
+from ecar_sim.alignment import quat_to_rot
 
 DISTANCE_BIN_M = 2.0
 ANGLE_BIN_DEG = 15.0
 
 
-# ---------------------------------------------------------------- geometry
-
-
-def quat_to_rot(q):
-    """Rotation matrix of a quaternion (x, y, z, w)."""
-    x, y, z, w = q
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def umeyama(src, dst):
-    """(s, R, t) minimising |dst - (s R src + t)|^2 over corresponding rows."""
-    src = np.asarray(src, dtype=float)
-    dst = np.asarray(dst, dtype=float)
-    if len(src) < 3:
-        raise ValueError("a similarity needs at least 3 corresponding positions, got %d" % len(src))
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    a, b = src - mu_s, dst - mu_d
-    cov = b.T @ a / len(src)
-    u, d, vt = np.linalg.svd(cov)
-    sign = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        sign[2, 2] = -1
-    r = u @ sign @ vt
-    var = (a * a).sum() / len(src)
-    if var <= 0:
-        raise ValueError("the map positions do not spread (all equal)")
-    s = np.trace(np.diag(d) @ sign) / var
-    return s, r, mu_d - s * r @ mu_s
-
-
-class Similarity:
-    """x_world = s R x_map + t."""
-
-    def __init__(self, s=1.0, r=None, t=None):
-        self.s = s
-        self.r = np.eye(3) if r is None else r
-        self.t = np.zeros(3) if t is None else t
-
-    def apply(self, p):
-        return self.s * self.r @ np.asarray(p, dtype=float) + self.t
+# ---------------------------------------------------------------- scene and camera
 
 
 class FreeSpace:
@@ -170,7 +129,8 @@ class VoState:
     __slots__ = ("id", "version", "deleted", "owner", "kind", "position", "start", "end", "wall")
 
     def __init__(self, id, version, deleted, owner, kind, position, start, end, wall):
-        self.id, self.version, self.deleted, self.owner, self.kind = id, version, deleted, owner, kind
+        self.id, self.version, self.deleted = id, version, deleted
+        self.owner, self.kind = owner, kind
         self.position = np.asarray(position, float)
         self.start = np.asarray(start, float)
         self.end = np.asarray(end, float)
@@ -178,9 +138,13 @@ class VoState:
 
     def points(self):
         """LINE: start, centre, end; ANCHOR: its position."""
-        if self.kind == 0:
+        if self.kind == VirtualObject.LINE:
             return [self.start, self.position, self.end]
         return [self.position]
+
+    def centre_index(self):
+        """Where its centre is in points()."""
+        return 1 if self.kind == VirtualObject.LINE else 0
 
 
 class Timeline:
@@ -209,7 +173,8 @@ class DeviceRecord:
     """What one device did and saw.
 
     frames: {frame_index: (wall, status, position, quaternion xyzw, {object_id: version})},
-            status 0 = not initialised, 1 = OK, 2 = LOST; pose = the device's own estimate (map).
+            status: DeviceFrame.NOT_INITIALISED, OK or LOST; pose = the device's own estimate
+            (map).
     gt:     {frame_index: (4x4 T_world_camera)}
     graph_walls: wall times of the local graphs received.
     """
@@ -295,7 +260,8 @@ class VoEvaluator:
             return None
         best = None
         for f, e in owner.frames.items():
-            if f in owner.gt and (best is None or abs(e[0] - first.wall) < abs(best[1] - first.wall)):
+            if f in owner.gt and (best is None or
+                                  abs(e[0] - first.wall) < abs(best[1] - first.wall)):
                 best = (f, e[0])
         return None if best is None else owner.gt[best[0]][:3, 3]
 
@@ -319,7 +285,7 @@ class VoEvaluator:
             walls = [dev.frames[f][0] for f in order]
             for f in sorted(dev.frames):
                 wall, status, pos, quat, held = dev.frames[f]
-                started = started or status != 0
+                started = started or status != DeviceFrame.NOT_INITIALISED
                 if not started or f not in dev.gt:
                     continue
                 T = dev.gt[f]
@@ -341,7 +307,7 @@ class VoEvaluator:
                     counts[1] += 1
                     if dev.name == state.owner:
                         continue
-                    centre = self.world_points(state)[1 if state.kind == 0 else 0]
+                    centre = self.world_points(state)[state.centre_index()]
                     dist = float(np.linalg.norm(centre - T[:3, 3]))
                     b = by_distance.setdefault(int(dist // DISTANCE_BIN_M), [0, 0])
                     b[0] += ok
@@ -353,7 +319,7 @@ class VoEvaluator:
                         b[0] += ok
                         b[1] += 1
                 # Where the device drew each VO version it held (tracked frames only).
-                if status != 1:
+                if status != DeviceFrame.OK:
                     continue
                 r_mc = quat_to_rot(quat)
                 t_mc = np.asarray(pos, float)
@@ -412,7 +378,8 @@ class VoEvaluator:
                     if k == len(frames):
                         continue
                     first = frames[k][1]
-                    if first not in dev.gt or dev.frames[first][1] == 0 or \
+                    if first not in dev.gt or \
+                            dev.frames[first][1] == DeviceFrame.NOT_INITIALISED or \
                             not self.visible(dev, first, state):
                         continue
                     got = next((w for w, f in frames[k:]
@@ -469,73 +436,12 @@ class VoEvaluator:
         for oid, states in sorted(self.timeline.by_id.items()):
             first, last = states[0], states[-1]
             out.append({
-                "id": oid, "owner": first.owner, "kind": "line" if first.kind == 0 else "anchor",
+                "id": oid, "owner": first.owner,
+                "kind": "line" if first.kind == VirtualObject.LINE else "anchor",
                 "versions": last.version, "deleted": bool(last.deleted),
-                "world_position": [round(float(x), 3) for x in self.world_points(first)[
-                    1 if first.kind == 0 else 0]],
-                "moved_m": round(float(np.linalg.norm(self.sim.s * (last.position - first.position))),
-                                 3),
+                "world_position": [round(float(x), 3)
+                                   for x in self.world_points(first)[first.centre_index()]],
+                "moved_m": round(float(np.linalg.norm(
+                    self.sim.s * (last.position - first.position))), 3),
             })
         return out
-
-
-# ---------------------------------------------------------------- planes
-
-PLANE_LABELS = {0: "floor", 1: "wall", 2: "ceiling", 3: "other"}
-
-
-def scene_faces(scene):
-    """The faces of the scene's boxes: (label, unit normal, point). Bottom faces of `spaces`
-    are floor, top faces ceiling, side faces walls; faces of `solids` are labelled by their
-    orientation with an "object " prefix (their top is not the floor)."""
-    faces = []
-    for key, prefix in (("spaces", ""), ("solids", "object ")):
-        for box in scene.get(key, []) or []:
-            lo, hi = np.array(box["min"], float), np.array(box["max"], float)
-            for axis in range(3):
-                for value in (lo[axis], hi[axis]):
-                    n = np.zeros(3)
-                    n[axis] = 1.0
-                    p = (lo + hi) / 2.0
-                    p[axis] = value
-                    if axis == 2:
-                        label = "floor" if value == lo[2] else "ceiling"
-                        if prefix:
-                            label = "top" if value == hi[2] else "bottom"
-                    else:
-                        label = "wall"
-                    faces.append((prefix + label, n, p))
-    return faces
-
-
-def check_planes(planes, scene, sim, max_angle_deg=10.0):
-    """Each server plane (dicts: id, label, normal, offset, centroid, points; map frame) put
-    into the world and matched to the nearest parallel scene face: is its label right, how far
-    is it from the face, at what angle."""
-    faces = scene_faces(scene)
-    rows = []
-    for pl in sorted(planes, key=lambda p: p["id"]):
-        n = sim.r @ np.asarray(pl["normal"], float)
-        n /= np.linalg.norm(n)
-        c = sim.apply(pl["centroid"])
-        best = None
-        for label, fn, fp in faces:
-            cos = abs(float(n @ fn))
-            if cos < math.cos(math.radians(max_angle_deg)):
-                continue
-            dist = abs(float(fn @ (c - fp)))
-            if best is None or dist < best[1]:
-                best = (label, dist, math.degrees(math.acos(min(1.0, cos))))
-        label = PLANE_LABELS.get(pl["label"], "other")
-        truth = best[0] if best else "none"
-        # A solid's top is a horizontal surface below the camera (floor by the gravity rule, or
-        # other), its sides are walls (or other).
-        accepted = {"object top": ("floor", "other"), "object wall": ("wall", "other"),
-                    "object bottom": ("ceiling", "other")}.get(truth, (truth,))
-        right = label in accepted
-        rows.append({"id": pl["id"], "label": label, "true_surface": truth, "right": right,
-                     "points": pl["points"],
-                     "distance_m": round(best[1], 4) if best else None,
-                     "angle_deg": round(best[2], 2) if best else None})
-    return {"planes": len(rows), "labelled_right": sum(1 for r in rows if r["right"]),
-            "found": sorted({r["true_surface"] for r in rows if r["right"]}), "detail": rows}
