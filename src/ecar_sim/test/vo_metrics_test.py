@@ -12,13 +12,14 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 from ecar_msgs.msg import DeviceFrame, Plane, VirtualObject  # noqa: E402
+from ecar_sim import ground_truth as truth  # noqa: E402
 from ecar_sim import plane_metrics  # noqa: E402
 from ecar_sim import vo_metrics as vm  # noqa: E402
 from ecar_sim.alignment import Similarity, quat_to_rot  # noqa: E402
 
 CORRIDOR = {"spaces": [{"min": [0, 0, 0], "max": [30, 2.4, 2.7]}],
             "solids": [{"min": [10, 0, 0], "max": [11, 2.4, 2.0]}]}
-CAMERA = vm.Camera(525.0, 525.0, 319.5, 239.5, 640, 480)
+CAMERA = truth.Camera(525.0, 525.0, 319.5, 239.5, 640, 480)
 
 
 def looking_along_x(x, y=1.2, z=1.5, sign=1.0):
@@ -67,22 +68,22 @@ class Session:
         self.devices.append(vm.DeviceRecord(name, CAMERA, frames, gt, walls))
 
     def evaluate(self, states, max_range=40.0):
-        return vm.VoEvaluator(vm.Timeline(states), self.devices, vm.FreeSpace(CORRIDOR), self.sim,
-                              max_range).evaluate()
+        return vm.VoEvaluator(vm.Timeline(states), self.devices, truth.FreeSpace(CORRIDOR),
+                              self.sim, max_range).evaluate()
 
 
 class VisibilityTest(unittest.TestCase):
     def test_frustum_range_and_walls(self):
         s = Session()
         s.device("device_1", [2.0], lambda f: {})
-        ev = vm.VoEvaluator(vm.Timeline([]), s.devices, vm.FreeSpace(CORRIDOR), Similarity(),
+        ev = vm.VoEvaluator(vm.Timeline([]), s.devices, truth.FreeSpace(CORRIDOR), Similarity(),
                             max_range=40.0)
         dev = s.devices[0]
         self.assertTrue(ev.visible(dev, 0, line(1, 1, [8.0, 1.2, 0.0], 0.0)))   # ahead on the floor
         self.assertFalse(ev.visible(dev, 0, line(2, 1, [1.0, 1.2, 0.0], 0.0)))  # behind the camera
         self.assertFalse(ev.visible(dev, 0, line(3, 1, [20.0, 1.2, 0.0], 0.0)))  # behind the solid
         self.assertTrue(ev.visible(dev, 0, line(4, 1, [20.0, 1.2, 2.6], 0.0)))  # over it, ceiling
-        short = vm.VoEvaluator(vm.Timeline([]), s.devices, vm.FreeSpace(CORRIDOR),
+        short = vm.VoEvaluator(vm.Timeline([]), s.devices, truth.FreeSpace(CORRIDOR),
                                Similarity(), max_range=5.0)
         self.assertFalse(short.visible(dev, 0, line(1, 1, [8.0, 1.2, 0.0], 0.0)))  # out of range
 

@@ -1,7 +1,8 @@
 """Virtual-object (VO) sync metrics of one session, computed against ground truth.
 
 Used by `run_session`; needs no running ROS, so it is tested on synthetic inputs
-(test/vo_metrics_test.py). The plane check is in `plane_metrics`, the fit in `alignment`.
+(test/vo_metrics_test.py). The scene, camera and ground truth are `ground_truth`'s, the
+plane check is in `plane_metrics`, the fit in `alignment`.
 
 Definitions (all times are wall-clock seconds on the session's one machine):
 
@@ -41,7 +42,6 @@ Definitions (all times are wall-clock seconds on the session's one machine):
 
 import bisect
 import math
-import os
 
 import numpy as np
 from ecar_msgs.msg import DeviceFrame, VirtualObject
@@ -52,75 +52,7 @@ DISTANCE_BIN_M = 2.0
 ANGLE_BIN_DEG = 15.0
 
 
-# ---------------------------------------------------------------- scene and camera
-
-
-class FreeSpace:
-    """The scene's free space: the union of its `spaces` boxes minus its `solids`."""
-
-    def __init__(self, scene):
-        self.spaces = [(np.array(b["min"], float), np.array(b["max"], float))
-                       for b in scene.get("spaces", [])]
-        self.solids = [(np.array(b["min"], float), np.array(b["max"], float))
-                       for b in scene.get("solids", []) or []]
-
-    def free(self, points, margin=0.02):
-        """Boolean per row of points (N x 3): inside a space (grown by margin) and in no solid
-        (shrunk by margin)."""
-        inside = np.zeros(len(points), bool)
-        for lo, hi in self.spaces:
-            inside |= np.all((points >= lo - margin) & (points <= hi + margin), axis=1)
-        for lo, hi in self.solids:
-            inside &= ~np.all((points > lo + margin) & (points < hi - margin), axis=1)
-        return inside
-
-    def line_of_sight(self, eye, target, step=0.05, end_gap=0.15):
-        """True when the segment eye -> target stays in free space, its last end_gap metres
-        (the surface the target lies on) excluded."""
-        d = target - eye
-        length = float(np.linalg.norm(d))
-        if length <= end_gap:
-            return True
-        n = max(2, int((length - end_gap) / step))
-        s = np.linspace(0.0, (length - end_gap) / length, n)
-        return bool(self.free(eye + s[:, None] * d).all())
-
-
-class Camera:
-    def __init__(self, fx, fy, cx, cy, width, height):
-        self.fx, self.fy, self.cx, self.cy = fx, fy, cx, cy
-        self.width, self.height = width, height
-
-    @staticmethod
-    def from_yaml(data):
-        return Camera(float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
-                      int(data["width"]), int(data["height"]))
-
-    def in_view(self, p_c, max_range):
-        """p_c: point in the optical frame (x right, y down, z forward)."""
-        z = p_c[2]
-        if z < 0.05 or np.linalg.norm(p_c) > max_range:
-            return False
-        u = self.fx * p_c[0] / z + self.cx
-        v = self.fy * p_c[1] / z + self.cy
-        return 0.0 <= u < self.width and 0.0 <= v < self.height
-
-
 # ---------------------------------------------------------------- inputs
-
-
-def read_groundtruth(folder):
-    """{frame index: 4x4 T_world_camera} from a dataset's groundtruth.txt (TUM, one pose per
-    frame, in frame order)."""
-    poses = {}
-    with open(os.path.join(folder, "groundtruth.txt")) as f:
-        rows = [line.split() for line in f if line.strip() and not line.startswith("#")]
-    for i, r in enumerate(rows):
-        T = np.eye(4)
-        T[:3, :3] = quat_to_rot([float(x) for x in r[4:8]])
-        T[:3, 3] = [float(x) for x in r[1:4]]
-        poses[i] = T
-    return poses
 
 
 class VoState:
@@ -163,6 +95,7 @@ class Timeline:
         return self.by_id[object_id][k - 1] if k else None
 
     def version(self, object_id, version):
+        """The state of that version, or None."""
         for s in self.by_id.get(object_id, []):
             if s.version == version:
                 return s
@@ -221,6 +154,9 @@ def _azimuth_deg(a, b):
 
 
 class VoEvaluator:
+    """The VO sync metrics of one session (see the module's definitions): evaluate() gives
+    summary.json's `vo`."""
+
     def __init__(self, timeline, devices, free_space, map_to_world, max_range=40.0):
         self.timeline = timeline
         self.devices = {d.name: d for d in devices}
@@ -231,6 +167,7 @@ class VoEvaluator:
         self._world_cache = {}
 
     def world_points(self, state):
+        """The state's points (VoState.points) in the world."""
         key = (state.id, state.version)
         if key not in self._world_cache:
             self._world_cache[key] = [self.sim.apply(p) for p in state.points()]
@@ -266,6 +203,8 @@ class VoEvaluator:
         return None if best is None else owner.gt[best[0]][:3, 3]
 
     def evaluate(self):
+        """Success overall, per device, by distance and angle; latency; position agreement;
+        each object (the dict of summary.json's `vo`)."""
         total = [0, 0]
         total_strict = [0, 0]
         by_device = {}
@@ -432,6 +371,7 @@ class VoEvaluator:
         return out
 
     def detail(self):
+        """Per object: owner, kind, versions, deleted, world position, how far it moved."""
         out = []
         for oid, states in sorted(self.timeline.by_id.items()):
             first, last = states[0], states[-1]

@@ -87,6 +87,7 @@ class Records:
         self.last_activity = time.time()
 
     def on_metrics(self, m):
+        """An ecar_msgs/RoundTripMetrics: one row of metrics.csv (times in ms)."""
         row = {
             "device": m.device_id, "frame": m.frame_index, "bytes_up": m.bytes_up,
             "bytes_down": m.bytes_down, "points": m.points, "positions": m.positions,
@@ -99,6 +100,7 @@ class Records:
             self.last_activity = time.time()
 
     def on_device_frame(self, m):
+        """An ecar_msgs/DeviceFrame: the device's FrameRecord of that frame."""
         now = time.time()
         position, orientation = pose_tuples(m.pose)
         record = FrameRecord(m.status, position, orientation, m.uploaded, m.tracking_time, now,
@@ -110,6 +112,8 @@ class Records:
             self.last_activity = now
 
     def on_local_graph(self, graph, device):
+        """An ecar_msgs/LocalGraph for `device`: counted, its planes kept, its pose kept as the
+        server's when its status says it has one (SERVER_POSE_STATUSES)."""
         for plane in graph.planes:
             self.on_plane(plane)
         with self.lock:
@@ -120,6 +124,7 @@ class Records:
             self.last_activity = time.time()
 
     def on_plane(self, plane):
+        """An ecar_msgs/Plane: kept when newer than the version held."""
         with self.lock:
             held = self.planes.get(plane.id)
             if held is not None and held["version"] >= plane.version:
@@ -130,11 +135,13 @@ class Records:
                 self.planes[plane.id] = entry
 
     def on_object(self, m):
+        """An ecar_msgs/VirtualObject accepted by the server, with its arrival time."""
         with self.lock:
             self.objects.append((time.time(), m))
             self.last_activity = time.time()
 
     def on_result(self, m, device):
+        """An ecar_msgs/InteractionResult of `device`: counted as accepted or by reason."""
         with self.lock:
             r = self.results[device]
             if m.accepted:
@@ -143,6 +150,7 @@ class Records:
                 r["rejected"][m.reason] = r["rejected"].get(m.reason, 0) + 1
 
     def on_finished(self, msg, device):
+        """The latched std_msgs/Bool of `device`'s player: true once it played everything."""
         if msg.data:
             with self.lock:
                 self.finished[device] = True

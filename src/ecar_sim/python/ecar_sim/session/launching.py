@@ -141,6 +141,7 @@ class Child:
                 pass
 
     def close(self):
+        """Closes the log file (once the process has ended)."""
         self._out.close()
 
 

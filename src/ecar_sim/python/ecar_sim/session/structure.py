@@ -14,6 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import yaml
 
+from ecar_sim import ground_truth as truth
 from ecar_sim import plane_metrics
 from ecar_sim import vo_metrics as vm
 from ecar_sim.alignment import robust_similarity
@@ -28,7 +29,7 @@ def fit_map_to_world(devices, datasets, records):
     frame) are dropped as outliers by a second fit. Raises ValueError without poses."""
     src, dst = [], []
     for d in devices:
-        gt = vm.read_groundtruth(datasets[d])
+        gt = truth.read_groundtruth(datasets[d])
         for f, (p, _) in records.server_poses[d].items():
             if f in gt:
                 src.append(p)
@@ -53,17 +54,18 @@ def evaluate_vos(args, devices, datasets, records, map_to_world):
     device_records = []
     for d in devices:
         with open(os.path.join(datasets[d], "camera.yaml")) as f:
-            camera = vm.Camera.from_yaml(yaml.safe_load(f))
+            camera = truth.Camera.from_yaml(yaml.safe_load(f))
         frames = {f: (e.wall, e.status, e.position, e.orientation, e.held)
                   for f, e in records.device_frames.get(d, {}).items()}
-        device_records.append(vm.DeviceRecord(d, camera, frames, vm.read_groundtruth(datasets[d]),
+        device_records.append(vm.DeviceRecord(d, camera, frames,
+                                              truth.read_groundtruth(datasets[d]),
                                               records.graph_walls[d]))
     states = [vm.VoState(m.id, m.version, m.deleted, m.owner, m.kind,
                          (m.position.x, m.position.y, m.position.z),
                          (m.start.x, m.start.y, m.start.z), (m.end.x, m.end.y, m.end.z), wall)
               for wall, m in records.objects]
     sim, info = map_to_world
-    result = vm.VoEvaluator(vm.Timeline(states), device_records, vm.FreeSpace(scene), sim,
+    result = vm.VoEvaluator(vm.Timeline(states), device_records, truth.FreeSpace(scene), sim,
                             args.vo_range).evaluate()
     result["map_to_world"] = info
     result["interaction_results"] = records.results
