@@ -1,6 +1,7 @@
 #!/usr/bin/python3
-"""Tests of the VO sync metrics (python/ecar_sim/vo_metrics.py) on synthetic sessions whose
-answers are known: a corridor box, cameras on known poses, VOs at known places."""
+"""Tests of the VO sync metrics (python/ecar_sim/vo_metrics.py) and the plane check
+(plane_metrics.py) on synthetic sessions whose answers are known: a corridor box, cameras on
+known poses, VOs at known places."""
 
 import math
 import os
@@ -10,11 +11,15 @@ import unittest
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
+from ecar_msgs.msg import DeviceFrame, Plane, VirtualObject  # noqa: E402
+from ecar_sim import ground_truth as truth  # noqa: E402
+from ecar_sim import plane_metrics  # noqa: E402
 from ecar_sim import vo_metrics as vm  # noqa: E402
+from ecar_sim.alignment import Similarity, quat_to_rot  # noqa: E402
 
 CORRIDOR = {"spaces": [{"min": [0, 0, 0], "max": [30, 2.4, 2.7]}],
             "solids": [{"min": [10, 0, 0], "max": [11, 2.4, 2.0]}]}
-CAMERA = vm.Camera(525.0, 525.0, 319.5, 239.5, 640, 480)
+CAMERA = truth.Camera(525.0, 525.0, 319.5, 239.5, 640, 480)
 
 
 def looking_along_x(x, y=1.2, z=1.5, sign=1.0):
@@ -37,14 +42,15 @@ def rot_to_quat(r):
 
 def line(oid, version, centre, wall, owner="device_0", deleted=False):
     c = np.array(centre, float)
-    return vm.VoState(oid, version, deleted, owner, 0, c, c - [0.2, 0, 0], c + [0.2, 0, 0], wall)
+    return vm.VoState(oid, version, deleted, owner, VirtualObject.LINE, c, c - [0.2, 0, 0],
+                      c + [0.2, 0, 0], wall)
 
 
 class Session:
     """Devices walking the corridor at 1 m per frame wall second, map == world."""
 
     def __init__(self, sim=None):
-        self.sim = sim or vm.Similarity()
+        self.sim = sim or Similarity()
         self.devices = []
 
     def device(self, name, xs, held, sign=1.0, wall0=0.0, pose_offset=(0, 0, 0), graphs=None):
@@ -57,44 +63,28 @@ class Session:
             # The device's estimate in the map: the ground truth mapped back, plus an offset.
             p_map = (inv @ np.append(T[:3, 3], 1.0))[:3] + np.asarray(pose_offset)
             r_map = self.sim.r.T @ T[:3, :3]
-            frames[f] = (wall0 + f, 1, tuple(p_map), rot_to_quat(r_map), dict(held(f)))
+            frames[f] = (wall0 + f, DeviceFrame.OK, tuple(p_map), rot_to_quat(r_map), dict(held(f)))
         walls = graphs if graphs is not None else [wall0 + 0.25 * k for k in range(4 * len(xs))]
         self.devices.append(vm.DeviceRecord(name, CAMERA, frames, gt, walls))
 
     def evaluate(self, states, max_range=40.0):
-        return vm.VoEvaluator(vm.Timeline(states), self.devices, vm.FreeSpace(CORRIDOR), self.sim,
-                              max_range).evaluate()
-
-
-class UmeyamaTest(unittest.TestCase):
-    def test_recovers_a_known_similarity(self):
-        rng = np.random.default_rng(3)
-        src = rng.normal(size=(20, 3))
-        r = vm.quat_to_rot((0.1, -0.3, 0.2, 0.9))
-        dst = 2.5 * src @ r.T + [1.0, -2.0, 0.5]
-        s, r_est, t = vm.umeyama(src, dst)
-        self.assertAlmostEqual(s, 2.5, places=9)
-        np.testing.assert_allclose(r_est, r, atol=1e-9)
-        np.testing.assert_allclose(t, [1.0, -2.0, 0.5], atol=1e-9)
-
-    def test_too_few_points(self):
-        with self.assertRaises(ValueError):
-            vm.umeyama([[0, 0, 0], [1, 0, 0]], [[0, 0, 0], [1, 0, 0]])
+        return vm.VoEvaluator(vm.Timeline(states), self.devices, truth.FreeSpace(CORRIDOR),
+                              self.sim, max_range).evaluate()
 
 
 class VisibilityTest(unittest.TestCase):
     def test_frustum_range_and_walls(self):
         s = Session()
         s.device("device_1", [2.0], lambda f: {})
-        ev = vm.VoEvaluator(vm.Timeline([]), s.devices, vm.FreeSpace(CORRIDOR), vm.Similarity(),
+        ev = vm.VoEvaluator(vm.Timeline([]), s.devices, truth.FreeSpace(CORRIDOR), Similarity(),
                             max_range=40.0)
         dev = s.devices[0]
         self.assertTrue(ev.visible(dev, 0, line(1, 1, [8.0, 1.2, 0.0], 0.0)))   # ahead on the floor
         self.assertFalse(ev.visible(dev, 0, line(2, 1, [1.0, 1.2, 0.0], 0.0)))  # behind the camera
         self.assertFalse(ev.visible(dev, 0, line(3, 1, [20.0, 1.2, 0.0], 0.0)))  # behind the solid
         self.assertTrue(ev.visible(dev, 0, line(4, 1, [20.0, 1.2, 2.6], 0.0)))  # over it, ceiling
-        short = vm.VoEvaluator(vm.Timeline([]), s.devices, vm.FreeSpace(CORRIDOR),
-                               vm.Similarity(), max_range=5.0)
+        short = vm.VoEvaluator(vm.Timeline([]), s.devices, truth.FreeSpace(CORRIDOR),
+                               Similarity(), max_range=5.0)
         self.assertFalse(short.visible(dev, 0, line(1, 1, [8.0, 1.2, 0.0], 0.0)))  # out of range
 
 
@@ -155,7 +145,7 @@ class SuccessTest(unittest.TestCase):
         for f, (x, sign) in enumerate(frames):
             T = looking_along_x(x, sign=sign)
             gt[f] = T
-            record[f] = (float(f), 1, tuple(T[:3, 3]), rot_to_quat(T[:3, :3]), held(f))
+            record[f] = (float(f), DeviceFrame.OK, tuple(T[:3, 3]), rot_to_quat(T[:3, :3]), held(f))
         s.devices.append(vm.DeviceRecord("device_1", CAMERA, record, gt,
                                          [0.25 * k for k in range(16)]))
         r = s.evaluate([line(1, 1, [6.0, 1.2, 0.0], wall=-10.0)])
@@ -180,7 +170,7 @@ class LatencyAndAgreementTest(unittest.TestCase):
         self.assertEqual(lat["within_two_round_trips"], 0.0)
 
     def test_agreement_reflects_pose_error(self):
-        sim = vm.Similarity(2.0, vm.quat_to_rot((0.0, 0.0, 0.38268343, 0.92387953)),
+        sim = Similarity(2.0, quat_to_rot((0.0, 0.0, 0.38268343, 0.92387953)),
                             np.array([3.0, -1.0, 0.2]))
         s = Session(sim)
         world = np.array([6.0, 1.2, 0.0])
@@ -189,7 +179,7 @@ class LatencyAndAgreementTest(unittest.TestCase):
         s.device("device_0", [1.0] * 5, lambda f: {5: 1})
         # device_1's pose estimate is off by 0.005 map units (1 cm in the world) along map x.
         s.device("device_1", [1.5] * 5, lambda f: {5: 1}, pose_offset=(0.005, 0.0, 0.0))
-        state = vm.VoState(5, 1, False, "device_0", 1, p_map, p_map, p_map, -5.0)
+        state = vm.VoState(5, 1, False, "device_0", VirtualObject.ANCHOR, p_map, p_map, p_map, -5.0)
         r = s.evaluate([state])
         self.assertEqual(r["success"], 1.0)
         self.assertEqual(r["position_agreement"]["pairs"], 1)
@@ -202,7 +192,7 @@ class LatencyAndAgreementTest(unittest.TestCase):
 
 class PlanesTest(unittest.TestCase):
     def test_labels_checked_against_the_scene(self):
-        sim = vm.Similarity(0.5, vm.quat_to_rot((0.0, 0.0, 0.38268343, 0.92387953)),
+        sim = Similarity(0.5, quat_to_rot((0.0, 0.0, 0.38268343, 0.92387953)),
                             np.array([3.0, -1.0, 0.2]))
 
         def to_map(n_w, c_w):
@@ -210,13 +200,13 @@ class PlanesTest(unittest.TestCase):
             c = sim.r.T @ (np.asarray(c_w, float) - sim.t) / sim.s
             return {"normal": n, "offset": -float(n @ c), "centroid": c}
 
-        planes = [dict(id=1, label=0, points=100, **to_map([0, 0, 1], [5.0, 1.2, 0.01])),
-                  dict(id=2, label=1, points=80, **to_map([0, 1, 0], [6.0, 2.38, 1.0])),
-                  dict(id=3, label=2, points=50, **to_map([0, 0, -1], [7.0, 1.0, 2.7])),
-                  dict(id=4, label=0, points=40, **to_map([0, 0, 1], [10.5, 1.0, 2.0])),
+        planes = [dict(id=1, label=Plane.FLOOR, points=100, **to_map([0, 0, 1], [5.0, 1.2, 0.01])),
+                  dict(id=2, label=Plane.WALL, points=80, **to_map([0, 1, 0], [6.0, 2.38, 1.0])),
+                  dict(id=3, label=Plane.CEILING, points=50, **to_map([0, 0, -1], [7.0, 1.0, 2.7])),
+                  dict(id=4, label=Plane.FLOOR, points=40, **to_map([0, 0, 1], [10.5, 1.0, 2.0])),
                   # A wall labelled floor: wrong.
-                  dict(id=5, label=0, points=30, **to_map([0, -1, 0], [12.0, 0.0, 1.0]))]
-        r = vm.check_planes(planes, CORRIDOR, sim)
+                  dict(id=5, label=Plane.FLOOR, points=30, **to_map([0, -1, 0], [12.0, 0.0, 1.0]))]
+        r = plane_metrics.check_planes(planes, CORRIDOR, sim)
         rows = {d["id"]: d for d in r["detail"]}
         self.assertEqual(r["planes"], 5)
         self.assertEqual(r["labelled_right"], 4)

@@ -31,7 +31,9 @@ import rospy
 import rostest
 import yaml
 from ecar_msgs.msg import DeviceFrame, InteractionResult, LocalGraph, VirtualObject
+from ecar_sim import ground_truth
 from ecar_sim import vo_metrics as vm
+from ecar_sim.alignment import Similarity, umeyama
 from std_msgs.msg import Bool
 
 PKG = "ecar_sim"
@@ -134,16 +136,16 @@ class VoSharingTest(unittest.TestCase):
         # Map -> world from the server's poses of both devices.
         src, dst, records = [], [], []
         for d in DEVICES:
-            gt = vm.read_groundtruth(datasets[d])
+            gt = ground_truth.read_groundtruth(datasets[d])
             for f, p in self.server[d].items():
                 src.append(p)
                 dst.append(gt[f][:3, 3])
             with open(os.path.join(datasets[d], "camera.yaml")) as f:
-                camera = vm.Camera.from_yaml(yaml.safe_load(f))
+                camera = ground_truth.Camera.from_yaml(yaml.safe_load(f))
             records.append(vm.DeviceRecord(d, camera, self.device_frames[d], gt,
                                            self.graph_walls[d]))
         self.assertGreater(len(self.server["receiver"]), 5, "the receiver never joined the map")
-        sim = vm.Similarity(*vm.umeyama(src, dst))
+        sim = Similarity(*umeyama(src, dst))
 
         # Each VO where it was drawn: floor line at x = 15, wall line at y = 2.4, x = 16.5. Along
         # the corridor the tolerance is wider on the wall: the touch ray meets it at about 15
@@ -171,7 +173,7 @@ class VoSharingTest(unittest.TestCase):
                              (m.start.x, m.start.y, m.start.z), (m.end.x, m.end.y, m.end.z), w)
                   for w, m in self.objects]
         with open(self.scene) as f:
-            space = vm.FreeSpace(yaml.safe_load(f))
+            space = ground_truth.FreeSpace(yaml.safe_load(f))
         result = vm.VoEvaluator(vm.Timeline(states), records, space, sim).evaluate()
         rospy.loginfo("VO metrics: %s", {k: result[k] for k in (
             "objects", "success", "success_other_devices", "by_distance", "latency",

@@ -1,6 +1,8 @@
 """Virtual-object (VO) sync metrics of one session, computed against ground truth.
 
-Used by `run_session`; ROS-free so it can be tested on synthetic inputs.
+Used by `run_session`; needs no running ROS, so it is tested on synthetic inputs
+(test/vo_metrics_test.py). The scene, camera and ground truth are `ground_truth`'s, the
+plane check is in `plane_metrics`, the fit in `alignment`.
 
 Definitions (all times are wall-clock seconds on the session's one machine):
 
@@ -40,128 +42,17 @@ Definitions (all times are wall-clock seconds on the session's one machine):
 
 import bisect
 import math
-import os
 
 import numpy as np
+from ecar_msgs.msg import DeviceFrame, VirtualObject
+
+from ecar_sim.alignment import quat_to_rot
 
 DISTANCE_BIN_M = 2.0
 ANGLE_BIN_DEG = 15.0
 
 
-# ---------------------------------------------------------------- geometry
-
-
-def quat_to_rot(q):
-    """Rotation matrix of a quaternion (x, y, z, w)."""
-    x, y, z, w = q
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def umeyama(src, dst):
-    """(s, R, t) minimising |dst - (s R src + t)|^2 over corresponding rows."""
-    src = np.asarray(src, dtype=float)
-    dst = np.asarray(dst, dtype=float)
-    if len(src) < 3:
-        raise ValueError("a similarity needs at least 3 corresponding positions, got %d" % len(src))
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    a, b = src - mu_s, dst - mu_d
-    cov = b.T @ a / len(src)
-    u, d, vt = np.linalg.svd(cov)
-    sign = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        sign[2, 2] = -1
-    r = u @ sign @ vt
-    var = (a * a).sum() / len(src)
-    if var <= 0:
-        raise ValueError("the map positions do not spread (all equal)")
-    s = np.trace(np.diag(d) @ sign) / var
-    return s, r, mu_d - s * r @ mu_s
-
-
-class Similarity:
-    """x_world = s R x_map + t."""
-
-    def __init__(self, s=1.0, r=None, t=None):
-        self.s = s
-        self.r = np.eye(3) if r is None else r
-        self.t = np.zeros(3) if t is None else t
-
-    def apply(self, p):
-        return self.s * self.r @ np.asarray(p, dtype=float) + self.t
-
-
-class FreeSpace:
-    """The scene's free space: the union of its `spaces` boxes minus its `solids`."""
-
-    def __init__(self, scene):
-        self.spaces = [(np.array(b["min"], float), np.array(b["max"], float))
-                       for b in scene.get("spaces", [])]
-        self.solids = [(np.array(b["min"], float), np.array(b["max"], float))
-                       for b in scene.get("solids", []) or []]
-
-    def free(self, points, margin=0.02):
-        """Boolean per row of points (N x 3): inside a space (grown by margin) and in no solid
-        (shrunk by margin)."""
-        inside = np.zeros(len(points), bool)
-        for lo, hi in self.spaces:
-            inside |= np.all((points >= lo - margin) & (points <= hi + margin), axis=1)
-        for lo, hi in self.solids:
-            inside &= ~np.all((points > lo + margin) & (points < hi - margin), axis=1)
-        return inside
-
-    def line_of_sight(self, eye, target, step=0.05, end_gap=0.15):
-        """True when the segment eye -> target stays in free space, its last end_gap metres
-        (the surface the target lies on) excluded."""
-        d = target - eye
-        length = float(np.linalg.norm(d))
-        if length <= end_gap:
-            return True
-        n = max(2, int((length - end_gap) / step))
-        s = np.linspace(0.0, (length - end_gap) / length, n)
-        return bool(self.free(eye + s[:, None] * d).all())
-
-
-class Camera:
-    def __init__(self, fx, fy, cx, cy, width, height):
-        self.fx, self.fy, self.cx, self.cy = fx, fy, cx, cy
-        self.width, self.height = width, height
-
-    @staticmethod
-    def from_yaml(data):
-        return Camera(float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
-                      int(data["width"]), int(data["height"]))
-
-    def in_view(self, p_c, max_range):
-        """p_c: point in the optical frame (x right, y down, z forward)."""
-        z = p_c[2]
-        if z < 0.05 or np.linalg.norm(p_c) > max_range:
-            return False
-        u = self.fx * p_c[0] / z + self.cx
-        v = self.fy * p_c[1] / z + self.cy
-        return 0.0 <= u < self.width and 0.0 <= v < self.height
-
-
 # ---------------------------------------------------------------- inputs
-
-
-def read_groundtruth(folder):
-    """{frame index: 4x4 T_world_camera} from a dataset's groundtruth.txt (TUM, one pose per
-    frame, in frame order)."""
-    poses = {}
-    with open(os.path.join(folder, "groundtruth.txt")) as f:
-        rows = [line.split() for line in f if line.strip() and not line.startswith("#")]
-    for i, r in enumerate(rows):
-        T = np.eye(4)
-        T[:3, :3] = quat_to_rot([float(x) for x in r[4:8]])
-        T[:3, 3] = [float(x) for x in r[1:4]]
-        poses[i] = T
-    return poses
 
 
 class VoState:
@@ -170,7 +61,8 @@ class VoState:
     __slots__ = ("id", "version", "deleted", "owner", "kind", "position", "start", "end", "wall")
 
     def __init__(self, id, version, deleted, owner, kind, position, start, end, wall):
-        self.id, self.version, self.deleted, self.owner, self.kind = id, version, deleted, owner, kind
+        self.id, self.version, self.deleted = id, version, deleted
+        self.owner, self.kind = owner, kind
         self.position = np.asarray(position, float)
         self.start = np.asarray(start, float)
         self.end = np.asarray(end, float)
@@ -178,9 +70,13 @@ class VoState:
 
     def points(self):
         """LINE: start, centre, end; ANCHOR: its position."""
-        if self.kind == 0:
+        if self.kind == VirtualObject.LINE:
             return [self.start, self.position, self.end]
         return [self.position]
+
+    def centre_index(self):
+        """Where its centre is in points()."""
+        return 1 if self.kind == VirtualObject.LINE else 0
 
 
 class Timeline:
@@ -199,6 +95,7 @@ class Timeline:
         return self.by_id[object_id][k - 1] if k else None
 
     def version(self, object_id, version):
+        """The state of that version, or None."""
         for s in self.by_id.get(object_id, []):
             if s.version == version:
                 return s
@@ -209,7 +106,8 @@ class DeviceRecord:
     """What one device did and saw.
 
     frames: {frame_index: (wall, status, position, quaternion xyzw, {object_id: version})},
-            status 0 = not initialised, 1 = OK, 2 = LOST; pose = the device's own estimate (map).
+            status: DeviceFrame.NOT_INITIALISED, OK or LOST; pose = the device's own estimate
+            (map).
     gt:     {frame_index: (4x4 T_world_camera)}
     graph_walls: wall times of the local graphs received.
     """
@@ -256,6 +154,9 @@ def _azimuth_deg(a, b):
 
 
 class VoEvaluator:
+    """The VO sync metrics of one session (see the module's definitions): evaluate() gives
+    summary.json's `vo`."""
+
     def __init__(self, timeline, devices, free_space, map_to_world, max_range=40.0):
         self.timeline = timeline
         self.devices = {d.name: d for d in devices}
@@ -266,6 +167,7 @@ class VoEvaluator:
         self._world_cache = {}
 
     def world_points(self, state):
+        """The state's points (VoState.points) in the world."""
         key = (state.id, state.version)
         if key not in self._world_cache:
             self._world_cache[key] = [self.sim.apply(p) for p in state.points()]
@@ -295,11 +197,14 @@ class VoEvaluator:
             return None
         best = None
         for f, e in owner.frames.items():
-            if f in owner.gt and (best is None or abs(e[0] - first.wall) < abs(best[1] - first.wall)):
+            if f in owner.gt and (best is None or
+                                  abs(e[0] - first.wall) < abs(best[1] - first.wall)):
                 best = (f, e[0])
         return None if best is None else owner.gt[best[0]][:3, 3]
 
     def evaluate(self):
+        """Success overall, per device, by distance and angle; latency; position agreement;
+        each object (the dict of summary.json's `vo`)."""
         total = [0, 0]
         total_strict = [0, 0]
         by_device = {}
@@ -319,7 +224,7 @@ class VoEvaluator:
             walls = [dev.frames[f][0] for f in order]
             for f in sorted(dev.frames):
                 wall, status, pos, quat, held = dev.frames[f]
-                started = started or status != 0
+                started = started or status != DeviceFrame.NOT_INITIALISED
                 if not started or f not in dev.gt:
                     continue
                 T = dev.gt[f]
@@ -341,7 +246,7 @@ class VoEvaluator:
                     counts[1] += 1
                     if dev.name == state.owner:
                         continue
-                    centre = self.world_points(state)[1 if state.kind == 0 else 0]
+                    centre = self.world_points(state)[state.centre_index()]
                     dist = float(np.linalg.norm(centre - T[:3, 3]))
                     b = by_distance.setdefault(int(dist // DISTANCE_BIN_M), [0, 0])
                     b[0] += ok
@@ -353,7 +258,7 @@ class VoEvaluator:
                         b[0] += ok
                         b[1] += 1
                 # Where the device drew each VO version it held (tracked frames only).
-                if status != 1:
+                if status != DeviceFrame.OK:
                     continue
                 r_mc = quat_to_rot(quat)
                 t_mc = np.asarray(pos, float)
@@ -412,7 +317,8 @@ class VoEvaluator:
                     if k == len(frames):
                         continue
                     first = frames[k][1]
-                    if first not in dev.gt or dev.frames[first][1] == 0 or \
+                    if first not in dev.gt or \
+                            dev.frames[first][1] == DeviceFrame.NOT_INITIALISED or \
                             not self.visible(dev, first, state):
                         continue
                     got = next((w for w, f in frames[k:]
@@ -465,77 +371,17 @@ class VoEvaluator:
         return out
 
     def detail(self):
+        """Per object: owner, kind, versions, deleted, world position, how far it moved."""
         out = []
         for oid, states in sorted(self.timeline.by_id.items()):
             first, last = states[0], states[-1]
             out.append({
-                "id": oid, "owner": first.owner, "kind": "line" if first.kind == 0 else "anchor",
+                "id": oid, "owner": first.owner,
+                "kind": "line" if first.kind == VirtualObject.LINE else "anchor",
                 "versions": last.version, "deleted": bool(last.deleted),
-                "world_position": [round(float(x), 3) for x in self.world_points(first)[
-                    1 if first.kind == 0 else 0]],
-                "moved_m": round(float(np.linalg.norm(self.sim.s * (last.position - first.position))),
-                                 3),
+                "world_position": [round(float(x), 3)
+                                   for x in self.world_points(first)[first.centre_index()]],
+                "moved_m": round(float(np.linalg.norm(
+                    self.sim.s * (last.position - first.position))), 3),
             })
         return out
-
-
-# ---------------------------------------------------------------- planes
-
-PLANE_LABELS = {0: "floor", 1: "wall", 2: "ceiling", 3: "other"}
-
-
-def scene_faces(scene):
-    """The faces of the scene's boxes: (label, unit normal, point). Bottom faces of `spaces`
-    are floor, top faces ceiling, side faces walls; faces of `solids` are labelled by their
-    orientation with an "object " prefix (their top is not the floor)."""
-    faces = []
-    for key, prefix in (("spaces", ""), ("solids", "object ")):
-        for box in scene.get(key, []) or []:
-            lo, hi = np.array(box["min"], float), np.array(box["max"], float)
-            for axis in range(3):
-                for value in (lo[axis], hi[axis]):
-                    n = np.zeros(3)
-                    n[axis] = 1.0
-                    p = (lo + hi) / 2.0
-                    p[axis] = value
-                    if axis == 2:
-                        label = "floor" if value == lo[2] else "ceiling"
-                        if prefix:
-                            label = "top" if value == hi[2] else "bottom"
-                    else:
-                        label = "wall"
-                    faces.append((prefix + label, n, p))
-    return faces
-
-
-def check_planes(planes, scene, sim, max_angle_deg=10.0):
-    """Each server plane (dicts: id, label, normal, offset, centroid, points; map frame) put
-    into the world and matched to the nearest parallel scene face: is its label right, how far
-    is it from the face, at what angle."""
-    faces = scene_faces(scene)
-    rows = []
-    for pl in sorted(planes, key=lambda p: p["id"]):
-        n = sim.r @ np.asarray(pl["normal"], float)
-        n /= np.linalg.norm(n)
-        c = sim.apply(pl["centroid"])
-        best = None
-        for label, fn, fp in faces:
-            cos = abs(float(n @ fn))
-            if cos < math.cos(math.radians(max_angle_deg)):
-                continue
-            dist = abs(float(fn @ (c - fp)))
-            if best is None or dist < best[1]:
-                best = (label, dist, math.degrees(math.acos(min(1.0, cos))))
-        label = PLANE_LABELS.get(pl["label"], "other")
-        truth = best[0] if best else "none"
-        # A solid's top is a horizontal surface below the camera (floor by the gravity rule, or
-        # other), its sides are walls (or other).
-        accepted = {"object top": ("floor", "other"), "object wall": ("wall", "other"),
-                    "object bottom": ("ceiling", "other")}.get(truth, (truth,))
-        right = label in accepted
-        rows.append({"id": pl["id"], "label": label, "true_surface": truth, "right": right,
-                     "points": pl["points"],
-                     "distance_m": round(best[1], 4) if best else None,
-                     "angle_deg": round(best[2], 2) if best else None})
-    return {"planes": len(rows), "labelled_right": sum(1 for r in rows if r["right"]),
-            "found": sorted({r["true_surface"] for r in rows if r["right"]}), "detail": rows}

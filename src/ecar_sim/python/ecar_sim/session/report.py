@@ -1,0 +1,77 @@
+"""What run_session prints: every line starts with "[run_session] ".
+
+The summary lines (print_summary) are the session's result as scripts/demo.sh shows it;
+their format is part of the interface. During playback a progress line (progress_line)
+every few seconds says how far the devices are.
+"""
+
+PREFIX = "[run_session] "
+
+
+def log(text):
+    """Prints one line with the run_session prefix, flushed (the output is often piped)."""
+    print(PREFIX + text, flush=True)
+
+
+def fmt(x, unit="", scale=1.0, digits=1):
+    """x * scale with `digits` decimals and the unit, or "n/a" for None."""
+    return "n/a" if x is None else ("%.*f%s" % (digits, x * scale, unit))
+
+
+def progress_line(elapsed_s, frames_played, frames_total, uploads, graphs, rate):
+    """One progress line (without the prefix) from per-device counts (dicts by device, in
+    session order) and the playback rate so far (x real time, None before two frames):
+
+      "20 s: frames 124/240, uploads 31 (device_0 16, device_2 15), local graphs 29,
+       playback 0.45x real time" (one line)
+    """
+    per_device = ", ".join("%s %d" % (d, n) for d, n in uploads.items())
+    return "%.0f s: frames %d/%d, uploads %d (%s), local graphs %d, playback %s real time" % (
+        elapsed_s, sum(frames_played.values()), sum(frames_total.values()),
+        sum(uploads.values()), per_device, sum(graphs.values()), fmt(rate, "x", 1.0, 2))
+
+
+def print_summary(s, out):
+    """The summary lines of a session summary (summary.json's dict) written to out."""
+    o = s["overall"]
+    log("%s" % s["pacing"]["note"])
+    for d, r in s["per_device"].items():
+        log("%s: uploads %d, graphs %d (%d with a pose), device tracked %s after its first graph, "
+            "device-vs-server %s over %d frames, ATE device %s / server %s" %
+            (d, r["uploads"], r["graphs_received"], r["graphs_with_pose"],
+             fmt(r["tracked_after_first_graph"], "%", 100.0), fmt(r["device_vs_server_rmse_m"],
+                                                                  " cm", 100.0, 2),
+             r["device_vs_server_frames"], fmt(r["device_ate_se3_m"], " cm", 100.0, 2),
+             fmt(r["server_ate_se3_m"], " cm", 100.0, 2)))
+    log("local graph %s B median (p95 %s B), %s B per tracked point; latency %s ms median (p95 %s);"
+        " server %s ms median" % (fmt(o["local_graph_bytes_median"], "", 1, 0),
+                                   fmt(o["local_graph_bytes_p95"], "", 1, 0),
+                                   fmt(o["bytes_per_point_median"], "", 1, 1),
+                                   fmt(o["latency_ms_median"]), fmt(o["latency_ms_p95"]),
+                                   fmt(o["server_ms_median"])))
+    pl = s.get("planes")
+    if pl:
+        log("planes: %d, labelled right %d (%s); %s" % (
+            pl["planes"], pl["labelled_right"], ", ".join(pl["found"]),
+            "; ".join("%d %s on %s %.1f cm %.1f deg" % (r["id"], r["label"], r["true_surface"],
+                                                        100 * (r["distance_m"] or 0),
+                                                        r["angle_deg"] or 0)
+                      for r in pl["detail"])))
+    vo = s.get("vo")
+    if vo:
+        lat = vo["latency"]
+        log("VOs (%s attach, %s share): %d objects, %d changes; success %s overall, %s on other "
+            "devices; change -> held on another device %s ms median (%s round trips, max %s); "
+            "position agreement %s max (%s max from within %g m)" %
+            (s["vo_attach"], s["vo_share"], vo["objects"], vo["changes"],
+             fmt(vo["success"], "%", 100.0), fmt(vo["success_other_devices"], "%", 100.0),
+             fmt(lat["median_ms"]), fmt(lat["median_round_trips"], "", 1, 2),
+             fmt(lat["max_round_trips"], "", 1, 2),
+             fmt(vo["position_agreement"]["max_m"], " cm", 100.0, 2),
+             fmt(vo["position_agreement"]["near_max_m"], " cm", 100.0, 2),
+             vo["position_agreement"]["near_limit_m"]))
+        for key in ("by_distance", "by_angle"):
+            log("  %s: %s" % (key, ", ".join("%s %s (%d)" % (b["bin"], fmt(b["success"], "%",
+                                                                           100.0), b["expected"])
+                                              for b in vo[key])))
+    log("wrote %s/summary.json and %s/metrics.csv" % (out, out))

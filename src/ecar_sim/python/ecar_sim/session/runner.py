@@ -1,0 +1,201 @@
+"""One measured session from start to summary (run), and --reevaluate (reevaluate).
+
+run: the datasets (datasets.py), the ROS master, server, devices and players (launching.py),
+the records while the datasets play (collecting.py), with a progress line every
+PROGRESS_PERIOD_S and an end at once when a child dies, then the summary (evaluating.py,
+structure.py, report.py). Exit status: 0, 1 when the sequences did not finish within the
+timeout, 2 on an error (a child died, the server did not come up).
+"""
+
+import os
+import shutil
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import rospy
+
+from ecar_sim.session import evaluating, launching, options, structure
+from ecar_sim.session.collecting import Collector
+from ecar_sim.session.datasets import dataset_frames, ensure_dataset, read_fps, scene_devices
+from ecar_sim.session.report import log, print_summary, progress_line
+
+PROGRESS_PERIOD_S = 5.0  # between progress lines during playback
+SETTLE_S = 3.0  # quiet time after every player finished before the session ends
+MASTER_TIMEOUT_S = 30.0
+CONNECT_TIMEOUT_S = 60.0  # for the server's /ecar/connect
+POLL_S = 0.5
+
+
+def main(argv, description=None):
+    """run_session's entry point: the exit status."""
+    args = options.parse_args(argv, description)
+    if args.reevaluate:
+        return reevaluate(args)
+    return run(args)
+
+
+def prepare_out(out):
+    """Creates out, removes a previous session's VO database and logs; returns out/logs."""
+    os.makedirs(out, exist_ok=True)
+    for stale in ("vo.sqlite", "vo.sqlite-wal", "vo.sqlite-shm"):
+        if os.path.exists(os.path.join(out, stale)):
+            os.remove(os.path.join(out, stale))
+    log_dir = os.path.join(out, "logs")
+    if os.path.isdir(log_dir):
+        shutil.rmtree(log_dir)
+    os.makedirs(log_dir)
+    return log_dir
+
+
+def session_env(port, log_dir):
+    """The environment of the session's children (its own master, logs in log_dir, output
+    flushed line by line so that a log is complete up to a crash); this process's rospy gets
+    the same master."""
+    env = dict(os.environ)
+    env.update({"ROS_MASTER_URI": "http://127.0.0.1:%d" % port, "ROS_HOSTNAME": "127.0.0.1",
+                "ROS_LOG_DIR": log_dir, "PYTHONUNBUFFERED": "1",
+                "ROSCONSOLE_STDOUT_LINE_BUFFERED": "1"})
+    env.pop("ROS_IP", None)
+    os.environ.update({k: env[k] for k in ("ROS_MASTER_URI", "ROS_HOSTNAME", "ROS_LOG_DIR")})
+    os.environ.pop("ROS_IP", None)
+    return env
+
+
+def report_deaths(error):
+    """The error lines of a ChildDied: each dead child, why, and the end of its log."""
+    for child, why in error.deaths:
+        log("error: %s died (%s); last lines of %s:" % (child.what, why, child.log_path))
+        for line in child.tail():
+            log("    " + line)
+
+
+def progress_text(collector, frames, fps, elapsed):
+    """The progress line of the session so far (see report.progress_line)."""
+    prog = collector.progress()
+    rate = evaluating.playback_rate(
+        {d: (p.frames, p.first_wall, p.last_wall) for d, p in prog.items()}, fps)
+    return progress_line(elapsed, {d: p.frames for d, p in prog.items()}, frames,
+                         {d: p.uploads for d, p in prog.items()},
+                         {d: p.graphs for d, p in prog.items()}, rate)
+
+
+def start_nodes(args, env, port, devices, datasets, procs):
+    """The ROS master (on port), the server and the devices; returns once the server's
+    /ecar/connect is up. Also writes the session's launch files into args.out."""
+    procs.start("roscore", "the ROS master", ["roscore", "-p", str(port)], env)
+    master = launching.wait_for_master(env["ROS_MASTER_URI"], MASTER_TIMEOUT_S, procs)
+    server = launching.server_include(args)
+    device_includes = {d: launching.device_include(args, d) for d in devices}
+    launching.write_launch(os.path.join(args.out, "session_nodes.launch"),
+                           [server] + list(device_includes.values()))
+    launching.write_launch(os.path.join(args.out, "session_players.launch"),
+                           [launching.player_include(args, d, datasets[d]) for d in devices])
+    procs.start("server", "the server", server.command(), env)
+    for d, inc in device_includes.items():
+        procs.start(d, "device %s" % d, inc.command(), env)
+    # Devices connect once their camera_info arrives (it carries the intrinsics), so the
+    # players start as soon as the server's connect service is up.
+    deadline = time.time() + CONNECT_TIMEOUT_S
+    while not launching.service_exists(master, "/ecar/connect"):
+        procs.check()
+        if time.time() > deadline:
+            raise RuntimeError("the server's /ecar/connect did not appear within %.0f s (see %s)"
+                               % (CONNECT_TIMEOUT_S, procs.log_dir))
+        time.sleep(0.2)
+
+
+def play(args, env, devices, datasets, procs, collector, frames, fps, timeout):
+    """Starts the players and waits until every dataset has played and the last messages are
+    in; returns (wall seconds, finished in time). Raises ChildDied when a child dies."""
+    log("server up; playing %d device(s)" % len(devices))
+    start = time.time()
+    for d in devices:
+        procs.start("%s_player" % d, "the player of %s" % d,
+                    launching.player_include(args, d, datasets[d]).command(), env)
+    next_progress = start + PROGRESS_PERIOD_S
+    while time.time() < start + timeout:
+        done, idle = collector.all_finished()
+        if done and idle > SETTLE_S:
+            return time.time() - start, True
+        procs.check()
+        if time.time() >= next_progress:
+            log(progress_text(collector, frames, fps, time.time() - start))
+            next_progress += PROGRESS_PERIOD_S
+        time.sleep(POLL_S)
+    log("timeout after %.0f s: sequences not finished" % timeout)
+    return time.time() - start, False
+
+
+def run(args):
+    """A whole session (args from options.parse_args); the exit status."""
+    out = args.out
+    log_dir = prepare_out(out)
+    scene_name, devices = scene_devices(args.scene, args.devices, args.device_names)
+    port = launching.free_port()
+    env = session_env(port, log_dir)
+
+    # make_dataset renders on one core: one per core at a time.
+    try:
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            datasets = dict(zip(devices, pool.map(
+                lambda d: ensure_dataset(args, env, scene_name, d), devices)))
+    except RuntimeError as e:
+        log("error: " + str(e))
+        return 2
+    frames = {d: dataset_frames(datasets[d]) for d in devices}
+    fps = read_fps(datasets[devices[0]])
+    timeout = args.timeout or 4.0 * max(frames.values()) / fps / args.rate + 120.0
+    log("%d device(s) %s, %s mode, every %d, JPEG %d, rate %g, master on port %d" %
+        (len(devices), ",".join(devices), args.sync_mode, args.every, args.jpeg_quality,
+         args.rate, port))
+
+    procs = launching.Processes(log_dir)
+    try:
+        start_nodes(args, env, port, devices, datasets, procs)
+        rospy.init_node("run_session", anonymous=True, disable_signals=True)
+        collector = Collector(devices)
+        wall, in_time = play(args, env, devices, datasets, procs, collector, frames, fps,
+                             timeout)
+    except launching.ChildDied as e:
+        report_deaths(e)
+        return 2
+    except RuntimeError as e:
+        log("error: " + str(e))
+        return 2
+    finally:
+        if rospy.core.is_initialized():
+            rospy.signal_shutdown("session over")
+        procs.stop_all()
+
+    traj_dir = os.path.join(out, "traj")
+    os.makedirs(traj_dir, exist_ok=True)
+    per_device = {d: evaluating.device_summary(d, datasets[d], collector, traj_dir, env)
+                  for d in devices}
+    overall = evaluating.overall_summary(devices, collector)
+    structure.save_raw(os.path.join(out, "vo_raw.json.gz"), collector)
+    vo, planes = structure.evaluate_structure(args, devices, datasets, collector)
+    spans = {d: (frames[d], collector.first_frame_wall.get(d), collector.last_frame_wall.get(d))
+             for d in devices}
+    pacing = evaluating.pacing_summary(args.rate, evaluating.playback_rate(spans, fps), wall)
+    summary = evaluating.build_summary(args, devices, pacing, per_device, overall, vo, planes)
+    evaluating.write_summary(out, summary)
+    evaluating.write_metrics_csv(out, collector.metrics)
+    print_summary(summary, out)
+    return 0 if in_time else 1
+
+
+def reevaluate(args):
+    """Recomputes the VO and plane metrics of the session in args.out from its
+    vo_raw.json.gz, rewrites summary.json and prints the summary."""
+    out = args.out
+    summary = evaluating.read_summary(out)
+    records = structure.RawCollector(os.path.join(out, "vo_raw.json.gz"))
+    args.scene = summary["scene"]
+    args.vo_range = summary.get("vo_range", args.vo_range)
+    devices = summary["devices"]
+    datasets = {d: summary["per_device"][d]["dataset"] for d in devices}
+    summary["vo"], summary["planes"] = structure.evaluate_structure(args, devices, datasets,
+                                                                    records)
+    evaluating.write_summary(out, summary)
+    print_summary(summary, out)
+    return 0

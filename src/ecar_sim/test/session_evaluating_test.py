@@ -1,0 +1,225 @@
+#!/usr/bin/python3
+"""Tests of a session's metrics and printed lines (python/ecar_sim/session/evaluating.py,
+report.py) on synthetic records whose answers are known."""
+
+import contextlib
+import csv
+import io
+import math
+import os
+import sys
+import tempfile
+import types
+import unittest
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
+from ecar_msgs.msg import DeviceFrame  # noqa: E402
+from ecar_sim.session import evaluating as ev  # noqa: E402
+from ecar_sim.session import report  # noqa: E402
+from ecar_sim.session.collecting import FrameRecord  # noqa: E402
+
+Q0 = (0.0, 0.0, 0.0, 1.0)
+# 10 degrees about z.
+Q10 = (0.0, 0.0, math.sin(math.radians(5.0)), math.cos(math.radians(5.0)))
+
+
+def write_dataset(folder, frames):
+    os.makedirs(folder)
+    with open(os.path.join(folder, "rgb.txt"), "w") as f:
+        f.write("# timestamp filename\n")
+        for i in range(frames):
+            f.write("%.6f rgb/%06d.png\n" % (100.0 + i / 30.0, i))
+    with open(os.path.join(folder, "groundtruth.txt"), "w") as f:
+        for i in range(frames):
+            f.write("%.6f %d 0 0 0 0 0 1\n" % (100.0 + i / 30.0, i))
+
+
+def metric_row(device, frame, latency, bytes_down=1000, points=50, server=5.0):
+    return {"device": device, "frame": frame, "bytes_up": 20000, "bytes_down": bytes_down,
+            "points": points, "positions": 3, "latency_ms": latency, "upload_ms": 1.0,
+            "server_ms": server, "download_ms": 0.5, "device_tracking_ms": 3.0}
+
+
+def records():
+    """device_0: 8 frames, not initialised on 0-1, OK on 2-5 and 7, LOST on 6; uploads on
+    0 and 4; the server's poses of frames 2-5 are 3 cm off along x and 10 degrees turned."""
+    frames = {}
+    for f in range(8):
+        status = (DeviceFrame.NOT_INITIALISED if f < 2 else
+                  DeviceFrame.LOST if f == 6 else DeviceFrame.OK)
+        frames[f] = FrameRecord(status, (float(f), 0.0, 0.0), Q0, f % 4 == 0, 0.002 * (f + 1),
+                                10.0 + f, {})
+    server = {f: ((f + 0.03, 0.0, 0.0), Q10) for f in range(2, 6)}
+    return types.SimpleNamespace(
+        device_frames={"device_0": frames}, server_poses={"device_0": server},
+        graphs={"device_0": 5},
+        metrics=[metric_row("device_0", 4, 30.0, 3000, 0), metric_row("device_0", 0, 10.0),
+                 metric_row("device_1", 0, 20.0, 2000, 100, 7.0)])
+
+
+class StatsTest(unittest.TestCase):
+    def test_percentile_and_round(self):
+        self.assertEqual(ev.percentile([4, 1, 3, 2], 50), 2.5)
+        self.assertAlmostEqual(ev.percentile(list(range(101)), 95), 95.0)
+        self.assertIsNone(ev.percentile([], 50))
+        self.assertIsNone(ev.rnd(None))
+        self.assertEqual(ev.rnd(1.23456, 2), 1.23)
+
+    def test_rotation_angle(self):
+        self.assertAlmostEqual(ev.rotation_angle_deg(Q0, Q10), 10.0, places=9)
+
+
+class DeviceSummaryTest(unittest.TestCase):
+    def test_known_records(self):
+        calls = []
+
+        def fake_ate(gt, est, env, sim3):
+            calls.append((os.path.basename(est), sim3))
+            return 0.012345 if sim3 else 0.5
+
+        with tempfile.TemporaryDirectory() as tmp:
+            dataset = os.path.join(tmp, "data")
+            write_dataset(dataset, 8)
+            traj = os.path.join(tmp, "traj")
+            os.makedirs(traj)
+            s = ev.device_summary("device_0", dataset, records(), traj, {}, ate_rmse=fake_ate)
+            with open(os.path.join(traj, "device_0_server.txt")) as f:
+                server_lines = f.read().splitlines()
+            self.assertTrue(os.path.exists(os.path.join(traj, "device_0_groundtruth.txt")))
+        self.assertEqual((s["frames"], s["uploads"], s["graphs_received"], s["graphs_with_pose"],
+                          s["round_trips_measured"]), (8, 2, 5, 4, 2))
+        self.assertEqual((s["frames_tracked_on_device"], s["frames_after_first_graph"]), (5, 6))
+        self.assertEqual(s["tracked_after_first_graph"], round(5 / 6, 4))
+        self.assertEqual(s["device_vs_server_frames"], 4)
+        self.assertAlmostEqual(s["device_vs_server_rmse_m"], 0.03)
+        self.assertAlmostEqual(s["device_vs_server_max_m"], 0.03)
+        self.assertAlmostEqual(s["device_vs_server_rot_median_deg"], 10.0)
+        self.assertEqual((s["device_ate_se3_m"], s["server_ate_sim3_m"]), (0.5, 0.0123))
+        self.assertEqual(len(calls), 4)
+        self.assertEqual(s["median_latency_ms"], 20.0)
+        # TUM: a header, then frames 2..5 stamped with the dataset's times.
+        self.assertEqual(len(server_lines), 5)
+        self.assertEqual(server_lines[1].split()[:2], ["100.066667", "2.030000"])
+
+    def test_no_poses_no_ate(self):
+        r = records()
+        r.server_poses["device_0"] = {}
+        evaluated = []
+        with tempfile.TemporaryDirectory() as tmp:
+            write_dataset(os.path.join(tmp, "d"), 8)
+            s = ev.device_summary("device_0", os.path.join(tmp, "d"), r, tmp, {},
+                                  ate_rmse=lambda gt, est, env, sim3: evaluated.append(est))
+        self.assertEqual([os.path.basename(e) for e in evaluated], ["device_0_device.txt"] * 2)
+        self.assertIsNone(s["server_ate_se3_m"])
+        self.assertIsNone(s["device_vs_server_rmse_m"])
+        self.assertEqual(s["device_vs_server_frames"], 0)
+
+
+class OverallTest(unittest.TestCase):
+    def test_medians_and_bytes_per_point(self):
+        o = ev.overall_summary(["device_0"], records())
+        self.assertEqual(o["round_trips"], 3)
+        self.assertEqual(o["local_graph_bytes_median"], 2000)
+        self.assertEqual(o["latency_ms_median"], 20.0)
+        self.assertEqual(o["server_ms_median"], 5.0)
+        # The graph without points is left out: 1000/50 and 2000/100.
+        self.assertEqual(o["bytes_per_point_median"], 20.0)
+        self.assertEqual(o["device_tracking_ms_median"], 9.0)
+
+    def test_empty_session(self):
+        empty = types.SimpleNamespace(device_frames={"a": {}}, metrics=[])
+        o = ev.overall_summary(["a"], empty)
+        self.assertEqual(o["round_trips"], 0)
+        self.assertIsNone(o["latency_ms_median"])
+
+
+class PacingTest(unittest.TestCase):
+    def test_rate_of_the_slowest_device(self):
+        # 31 frames at 30 fps = 1 s of data: device a in 2 s, b in 4 s.
+        spans = {"a": (31, 10.0, 12.0), "b": (31, 10.0, 14.0), "c": (31, None, None)}
+        self.assertAlmostEqual(ev.playback_rate(spans, 30.0), 0.25)
+        self.assertIsNone(ev.playback_rate({"a": (5, 3.0, 3.0)}, 30.0))
+
+    def test_note(self):
+        p = ev.pacing_summary(1.0, 0.4321, 20.04)
+        self.assertEqual(p, {"requested_rate": 1.0, "achieved_rate": 0.432, "kept_up": False,
+                             "wall_seconds": 20.0,
+                             "note": "the machine could not keep up at rate 1: the round trips "
+                                     "paced playback to 0.43x real time"})
+        self.assertTrue(ev.pacing_summary(0.5, 0.46, 1.0)["kept_up"])
+        self.assertEqual(ev.pacing_summary(0.5, 0.46, 1.0)["note"],
+                         "playback kept the requested rate")
+        self.assertEqual(ev.pacing_summary(1.0, None, 1.0)["achieved_rate"], 0.0)
+
+
+class FilesTest(unittest.TestCase):
+    def test_metrics_csv(self):
+        with tempfile.TemporaryDirectory() as tmp:
+            ev.write_metrics_csv(tmp, records().metrics)
+            with open(os.path.join(tmp, "metrics.csv")) as f:
+                rows = list(csv.DictReader(f))
+        self.assertEqual(list(rows[0]), ev.METRICS_FIELDS)
+        self.assertEqual([(r["device"], r["frame"]) for r in rows],
+                         [("device_0", "0"), ("device_0", "4"), ("device_1", "0")])
+
+
+def summary():
+    per = {"uploads": 98, "graphs_received": 97, "graphs_with_pose": 92,
+           "tracked_after_first_graph": 1.0, "device_vs_server_rmse_m": 0.00531,
+           "device_vs_server_frames": 91, "device_ate_se3_m": 0.0123, "server_ate_se3_m": None}
+    return {
+        "vo_attach": "grid", "vo_share": "graph",
+        "pacing": ev.pacing_summary(1.0, 0.44, 20.0), "per_device": {"device_0": per},
+        "overall": {"local_graph_bytes_median": 5772.0, "local_graph_bytes_p95": 7630.4,
+                    "bytes_per_point_median": 19.23, "latency_ms_median": 21.8,
+                    "latency_ms_p95": 46.44, "server_ms_median": 19.6},
+        "planes": {"planes": 1, "labelled_right": 1, "found": ["floor"],
+                   "detail": [{"id": 1, "label": "floor", "true_surface": "floor",
+                               "distance_m": 0.014, "angle_deg": 0.5}]},
+        "vo": {"objects": 18, "changes": 293, "success": 1.0, "success_other_devices": 0.5,
+               "latency": {"median_ms": 173.3, "median_round_trips": 0.734,
+                           "max_round_trips": 1.13},
+               "position_agreement": {"max_m": 0.0044, "near_max_m": None, "near_limit_m": 10.0},
+               "by_distance": [{"bin": "2-4 m", "success": 1.0, "expected": 58}],
+               "by_angle": [{"bin": "0-15 deg", "success": None, "expected": 0}]},
+    }
+
+
+class ReportTest(unittest.TestCase):
+    def test_summary_lines(self):
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out):
+            report.print_summary(summary(), "/o")
+        p = "[run_session] "
+        self.assertEqual(out.getvalue().splitlines(), [
+            p + "the machine could not keep up at rate 1: the round trips paced playback to "
+                "0.44x real time",
+            p + "device_0: uploads 98, graphs 97 (92 with a pose), device tracked 100.0% after its "
+                "first graph, device-vs-server 0.53 cm over 91 frames, ATE device 1.23 cm / "
+                "server n/a",
+            p + "local graph 5772 B median (p95 7630 B), 19.2 B per tracked point; latency 21.8 ms "
+                "median (p95 46.4); server 19.6 ms median",
+            p + "planes: 1, labelled right 1 (floor); 1 floor on floor 1.4 cm 0.5 deg",
+            p + "VOs (grid attach, graph share): 18 objects, 293 changes; success 100.0% overall, "
+                "50.0% on other devices; change -> held on another device 173.3 ms median (0.73 "
+                "round trips, max 1.13); position agreement 0.44 cm max (n/a max from within "
+                "10 m)",
+            p + "  by_distance: 2-4 m 100.0% (58)",
+            p + "  by_angle: 0-15 deg n/a (0)",
+            p + "wrote /o/summary.json and /o/metrics.csv"])
+
+    def test_progress_line(self):
+        line = report.progress_line(20.4, {"device_0": 64, "device_2": 60},
+                                    {"device_0": 120, "device_2": 120},
+                                    {"device_0": 16, "device_2": 15},
+                                    {"device_0": 15, "device_2": 14}, 0.4512)
+        self.assertEqual(line, "20 s: frames 124/240, uploads 31 (device_0 16, device_2 15), "
+                               "local graphs 29, playback 0.45x real time")
+        line = report.progress_line(5.0, {"a": 0}, {"a": 40}, {"a": 0}, {"a": 0}, None)
+        self.assertEqual(line, "5 s: frames 0/40, uploads 0 (a 0), local graphs 0, "
+                               "playback n/a real time")
+
+
+if __name__ == "__main__":
+    import rosunit
+    rosunit.unitrun("ecar_sim", "session_evaluating", "__main__")
