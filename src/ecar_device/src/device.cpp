@@ -65,13 +65,32 @@ Device::Device(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const Devi
   odometry_sub_ = nh_.subscribe("odometry", 10, &Device::onOdometry, this);
   // A short queue: when tracking falls behind the camera, old frames go. The
   // transport is image_transport's (~image_transport: raw, compressed, ...).
-  image_sub_ = image_transport_.subscribe("camera/image_raw", 2, &Device::onImage, this,
-                                          image_transport::TransportHints(
-                                              config_.image_transport, ros::TransportHints(), pnh_));
+  try {
+    image_sub_ = image_transport_.subscribe(
+        "camera/image_raw", 2, &Device::onImage, this,
+        image_transport::TransportHints(config_.image_transport, ros::TransportHints(), pnh_));
+  } catch (const image_transport::TransportLoadException& e) {
+    throw ecar::Error("image_transport \"" + config_.image_transport +
+                      "\" cannot be loaded (raw and compressed are installed): " + e.what());
+  }
   if (config_.pace_in_flight > 0) {
     pace_timer_ = nh_.createSteadyTimer(ros::WallDuration(0.01),
                                         [this](const ros::SteadyTimerEvent&) { onPaceTimer(); });
   }
+  reconfigure_ = std::make_unique<dynamic_reconfigure::Server<DeviceTuningConfig>>(
+      reconfigure_mutex_, pnh_);
+  {
+    DeviceTuningConfig tuning;
+    tuning.every = config_.every;
+    tuning.jpeg_quality = config_.jpeg_quality;
+    tuning.draw_points = config_.ar_view.draw_points;
+    tuning.draw_objects = config_.ar_view.draw_objects;
+    tuning.draw_status = config_.ar_view.draw_status;
+    std::lock_guard<boost::recursive_mutex> lock(reconfigure_mutex_);
+    reconfigure_->updateConfig(tuning);
+  }
+  reconfigure_->setCallback(
+      [this](const DeviceTuningConfig& tuning, uint32_t) { onReconfigure(tuning); });
   last_progress_ = ros::WallTime::now();
   connect_nh_.setCallbackQueue(&connect_queue_);
   connect_timer_ =
@@ -84,7 +103,22 @@ Device::Device(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const Devi
            config_.sync_mode.c_str(), config_.tracker.keyframe_queue);
 }
 
+void Device::onReconfigure(const DeviceTuningConfig& tuning) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (tuning.every != config_.every || tuning.jpeg_quality != config_.jpeg_quality) {
+    ROS_INFO("%s: uploading every %d frames at JPEG %d (was every %d, JPEG %d)",
+             config_.device_id.c_str(), tuning.every, tuning.jpeg_quality, config_.every,
+             config_.jpeg_quality);
+  }
+  config_.every = tuning.every;
+  config_.jpeg_quality = tuning.jpeg_quality;
+  config_.ar_view.draw_points = tuning.draw_points;
+  config_.ar_view.draw_objects = tuning.draw_objects;
+  config_.ar_view.draw_status = tuning.draw_status;
+}
+
 Device::~Device() {
+  reconfigure_.reset();
   connect_timer_.stop();
   if (connect_spinner_) connect_spinner_->stop();
   pace_timer_.stop();

@@ -2,7 +2,8 @@
 # (The system interpreter: a python3 from pyenv or a venv first on PATH has no rospy.)
 """The device node alone, against a fake server (started by device.test).
 
-1. Renders a short corridor dataset (make_dataset) and plays it in a loop.
+1. Renders a short corridor dataset (make_dataset) and plays it in a loop; the device reads the
+   camera through the compressed transport (~image_transport: compressed, ecar_image_transport).
 2. Before any connect service exists the device tracks nothing and uploads nothing.
 3. Offers /ecar/connect late: the device connects; uploads arrive every 4th frame with a valid
    JPEG of the camera's size, gravity (norm ~9.81), odometry, reset on the first one.
@@ -15,6 +16,7 @@
    touch's colour and width; accepted ones come back in a graph and are drawn into ar_view in
    their colour; a touch on such a VO sends MANIPULATE with its id and base_version, moved along
    the floor.
+   ar_view/compressed offers the same view as a JPEG.
 8. vo_share direct: a VO published on /<device>/objects is held (a touch on it sends MANIPULATE);
    its tombstone removes it (a touch there sends nothing).
 """
@@ -31,7 +33,7 @@ import unittest
 
 import rospy
 import rostest
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CompressedImage, Image
 from ecar_msgs.msg import (DeviceFrame, Interaction, InteractionResult, LocalGraph, Plane,
                            RoundTripMetrics, Touch, Upload, VirtualObject)
 from geometry_msgs.msg import Point
@@ -361,6 +363,22 @@ class DeviceTest(unittest.TestCase):
         self.wait_for(lambda: any(n >= 50 for n in self.stroke_pixels), 10.0,
                       "the stroke drawn in ar_view")
         view_sub.unregister()
+
+        # ar_view is offered through image_transport's compressed transport too (ecar_image_
+        # transport): a JPEG of the camera's size.
+        sizes = []
+
+        def on_compressed(img):
+            with self.lock:
+                sizes.append((img.format, jpeg_size(img.data)))
+
+        view_sub = rospy.Subscriber("/" + self.device + "/ar_view/compressed", CompressedImage,
+                                    on_compressed, queue_size=1)
+        self.wait_for(lambda: len(sizes) >= 2, 10.0, "ar_view/compressed")
+        view_sub.unregister()
+        for fmt, size in sizes:
+            self.assertIn("jpeg", fmt)
+            self.assertEqual(size, (640, 480), "ar_view/compressed is a 640x480 JPEG")
 
         # 8. A touch on the first line grabs it: MANIPULATE with its id, moved along the floor.
         with self.lock:

@@ -38,6 +38,7 @@
 #include <string>
 #include <vector>
 
+#include <dynamic_reconfigure/server.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <image_transport/image_transport.h>
 #include <ros/callback_queue.h>
@@ -57,6 +58,7 @@
 #include "ecar_core/common/camera.h"
 #include "ecar_core/device/device_objects.h"
 #include "ecar_core/device/device_tracker.h"
+#include "ecar_device/DeviceTuningConfig.h"
 
 namespace ecar_device {
 
@@ -139,6 +141,8 @@ class Device {
   void onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg);
   void onConnectTimer();
   void onPaceTimer();
+  /// dynamic_reconfigure: every, jpeg_quality, the ar_view drawing options.
+  void onReconfigure(const DeviceTuningConfig& tuning);
 
   // The following helpers need mutex_ held.
   /// JPEG-encodes an upload of `gray` and keeps the frame pending; publishes
@@ -210,6 +214,8 @@ class Device {
       direct_objects_sub_;
   tf2_ros::TransformBroadcaster tf_;
   ros::SteadyTimer pace_timer_;
+  boost::recursive_mutex reconfigure_mutex_;
+  std::unique_ptr<dynamic_reconfigure::Server<DeviceTuningConfig>> reconfigure_;
 
   // Connection attempts run on their own queue and thread, so a slow or
   // missing server never stalls the camera callbacks.
