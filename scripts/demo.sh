@@ -9,7 +9,8 @@
 #
 # Usage: scripts/demo.sh [--frames N] [--sync-mode ecar|edgeslam] [--gui]
 #   --frames N   frames per device (default 400; 0 = the whole 30 m walk)
-#   --gui        the same demo with rviz (roslaunch launch/demo.launch), needs a display
+#   --gui        the same demo (device_0 and device_2) with rviz showing both
+#                devices' ar_view (roslaunch launch/demo.launch), needs a display
 set -eo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -21,7 +22,7 @@ while [[ $# -gt 0 ]]; do
     --frames) FRAMES="$2"; shift 2 ;;
     --sync-mode) SYNC="$2"; shift 2 ;;
     --gui) GUI=1; shift ;;
-    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
     *) echo "demo.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -34,7 +35,7 @@ if [[ $GUI == 1 ]]; then
   # live demo with rviz.
   SUFFIX=""
   [[ $FRAMES != 0 ]] && SUFFIX="_f$FRAMES"
-  for d in device_0 device_1; do
+  for d in device_0 device_2; do
     dir="$DATA/corridor_$d$SUFFIX"
     if [[ ! -f "$dir/groundtruth.txt" ]]; then
       args=(--scene config/scenes/corridor.yaml --device "$d" --out "$dir" --quiet)
@@ -42,7 +43,8 @@ if [[ $GUI == 1 ]]; then
       rosrun ecar_sim make_dataset "${args[@]}"
     fi
   done
-  exec roslaunch launch/demo.launch datasets:="$DATA" suffix:="$SUFFIX" sync_mode:="$SYNC"
+  exec roslaunch launch/demo.launch datasets:="$DATA" suffix:="$SUFFIX" sync_mode:="$SYNC" \
+    devices:=device_0,device_2
 fi
 
 echo "[demo] server + device_0 and device_2 on the synthetic corridor ($SYNC mode), headless"
