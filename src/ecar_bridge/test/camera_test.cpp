@@ -150,7 +150,8 @@ TEST(ImageTest, EncodingFollowsTheMatType) {
 
 TEST(ImageTest, RejectsEmptyAndUnsupportedImages) {
   EXPECT_THROW(toImageMsg(cv::Mat(), testing::someHeader()), ecar::Error);
-  EXPECT_THROW(toImageMsg(cv::Mat(2, 2, CV_32FC1, cv::Scalar(1.0f)), testing::someHeader()), ecar::Error);
+  EXPECT_THROW(toImageMsg(cv::Mat(2, 2, CV_32FC1, cv::Scalar(1.0f)), testing::someHeader()),
+               ecar::Error);
   EXPECT_THROW(toImageMsg(cv::Mat(2, 2, CV_8UC4, cv::Scalar(1, 2, 3, 4)), testing::someHeader()),
                ecar::Error);
 }

@@ -152,8 +152,8 @@ TEST(InteractionTest, RoundTripOfEveryType) {
 }
 
 TEST(InteractionResultTest, RoundTrip) {
-  const ecar::VoResult r{"device_0", 12, false, ecar::ObjectId(5), 3,
-                         "stale base_version 2 (store has 3)"};
+  const ecar::VoResult r{"device_0",        12, false,
+                         ecar::ObjectId(5), 3,  "stale base_version 2 (store has 3)"};
   const ecar_msgs::InteractionResult m = toMsg(r, std_msgs::Header());
   EXPECT_EQ(m.device_id, "device_0");
   const ecar::VoResult back = fromMsg(m);

@@ -19,8 +19,8 @@
 #include <time.h>
 
 #include "ecar_core/common/geometry.h"
-#include "ecar_core/slam/optimizer.h"
 #include "ecar_core/eval/trajectory_eval.h"
+#include "ecar_core/slam/optimizer.h"
 
 namespace {
 

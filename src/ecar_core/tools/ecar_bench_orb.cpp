@@ -21,11 +21,11 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "ecar_core/common/error.h"
-#include "ecar_core/slam/features.h"
+#include "ecar_core/eval/trajectory_eval.h"
 #include "ecar_core/sim/motion.h"
 #include "ecar_core/sim/renderer.h"
 #include "ecar_core/sim/scene.h"
-#include "ecar_core/eval/trajectory_eval.h"
+#include "ecar_core/slam/features.h"
 
 namespace {
 

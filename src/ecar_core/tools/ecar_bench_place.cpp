@@ -26,9 +26,9 @@
 #include <opencv2/core.hpp>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/eval/trajectory_eval.h"
 #include "ecar_core/slam/matcher.h"
 #include "ecar_core/slam/place_recognition.h"
-#include "ecar_core/eval/trajectory_eval.h"
 
 namespace {
 

@@ -17,10 +17,10 @@
 #include <opencv2/features2d.hpp>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/eval/trajectory_eval.h"
 #include "ecar_core/sim/motion.h"
 #include "ecar_core/sim/renderer.h"
 #include "ecar_core/sim/scene.h"
-#include "ecar_core/eval/trajectory_eval.h"
 
 namespace {
 

@@ -12,8 +12,8 @@
 #include <vector>
 
 #include "ecar_core/common/error.h"
-#include "ecar_core/io/trajectory.h"
 #include "ecar_core/eval/trajectory_eval.h"
+#include "ecar_core/io/trajectory.h"
 
 namespace {
 

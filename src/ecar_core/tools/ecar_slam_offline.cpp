@@ -42,11 +42,11 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "ecar_core/io/dataset.h"
 #include "ecar_core/common/error.h"
-#include "ecar_core/slam/slam_system.h"
-#include "ecar_core/io/trajectory.h"
 #include "ecar_core/eval/trajectory_eval.h"
+#include "ecar_core/io/dataset.h"
+#include "ecar_core/io/trajectory.h"
+#include "ecar_core/slam/slam_system.h"
 
 namespace {
 

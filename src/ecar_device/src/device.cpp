@@ -1,7 +1,9 @@
+// Device: the camera, IMU and odometry callbacks, uploads, local graphs,
+// pacing and the connection. The virtual-object handlers are in
+// device_interaction.cpp.
 #include "ecar_device/device.h"
 
 #include <algorithm>
-#include <cmath>
 #include <cstdio>
 
 #include <cv_bridge/cv_bridge.h>
@@ -15,17 +17,18 @@
 #include <ecar_msgs/RoundTripMetrics.h>
 #include <ecar_msgs/Upload.h>
 
+#include "device_internal.h"
 #include "ecar_bridge/camera.h"
 #include "ecar_bridge/device_messages.h"
 #include "ecar_bridge/geometry.h"
 #include "ecar_bridge/local_graph.h"
-#include "ecar_bridge/objects.h"
 #include "ecar_core/common/error.h"
 
 namespace ecar_device {
 namespace {
 
-constexpr double kWarnPeriod = 2.0;  ///< s between repeated warnings of one kind
+using device_internal::kWarnPeriod;
+
 constexpr size_t kOdometryKept = 64;
 
 const char* stateName(ecar::TrackingState s) { return ecar::toString(s); }
@@ -77,8 +80,8 @@ Device::Device(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const Devi
     pace_timer_ = nh_.createSteadyTimer(ros::WallDuration(0.01),
                                         [this](const ros::SteadyTimerEvent&) { onPaceTimer(); });
   }
-  reconfigure_ = std::make_unique<dynamic_reconfigure::Server<DeviceTuningConfig>>(
-      reconfigure_mutex_, pnh_);
+  reconfigure_ =
+      std::make_unique<dynamic_reconfigure::Server<DeviceTuningConfig>>(reconfigure_mutex_, pnh_);
   {
     DeviceTuningConfig tuning;
     tuning.every = config_.every;
@@ -296,8 +299,8 @@ void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
                            const ecar::DeviceTrackResult& r, bool uploaded) {
   device_frame_pub_.publish(ecar_bridge::toMsg(
       config_.device_id, image.header.stamp, config_.map_frame, r,
-      static_cast<uint32_t>(tracker_->numKeyFrames()),
-      static_cast<uint32_t>(tracker_->numPoints()), uploaded, objects_.objects()));
+      static_cast<uint32_t>(tracker_->numKeyFrames()), static_cast<uint32_t>(tracker_->numPoints()),
+      uploaded, objects_.objects()));
   std_msgs::Header header;
   header.stamp = image.header.stamp;
   header.frame_id = config_.map_frame;
@@ -363,13 +366,13 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
   try {
     graph = ecar_bridge::fromMsg(*msg, &skipped);
   } catch (const ecar::Error& e) {
-    ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph for frame %u dropped: %s", id,
-                      msg->frame_index, e.what());
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph for frame %u dropped: %s", id, msg->frame_index,
+                      e.what());
     return;
   }
   for (const std::string& why : skipped) {
-    ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph of frame %u: skipped %s", id,
-                      msg->frame_index, why.c_str());
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: local graph of frame %u: skipped %s", id, msg->frame_index,
+                      why.c_str());
   }
   const bool ok_status = ecar::tracked(graph.status);
   const bool edgeslam = graph.mode == ecar::SyncMode::kEdgeSlam;
@@ -438,81 +441,6 @@ void Device::prunePending(const ros::Time& now) {
   while (!pending_.empty() && (now - pending_.front().sent).toSec() > config_.reconnect_timeout) {
     free_images_.push_back(std::move(pending_.front().gray));
     pending_.pop_front();
-  }
-}
-
-// ---------------------------------------------------------------- virtual objects
-
-void Device::onTouch(const ecar_msgs::TouchConstPtr& msg) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  const char* id = config_.device_id.c_str();
-  ecar::Touch touch;
-  try {
-    touch = ecar_bridge::fromMsg(*msg);
-  } catch (const ecar::Error& e) {
-    ROS_WARN_THROTTLE(kWarnPeriod, "%s: touch dropped: %s", id, e.what());
-    return;
-  }
-  // A stroke or drag goes on from the last pose; a new one needs a recent pose.
-  const bool begin = msg->phase == ecar_msgs::Touch::BEGIN;
-  if (!camera_ || !T_w_c_ ||
-      (begin && (last_image_stamp_ - pose_stamp_).toSec() > config_.touch_pose_timeout)) {
-    ROS_WARN_THROTTLE(kWarnPeriod, "%s: touch dropped: no pose within ~touch_pose_timeout", id);
-    return;
-  }
-  requests_.clear();
-  objects_.touch(touch, *T_w_c_, *camera_, &requests_);
-  std_msgs::Header header;
-  header.stamp = msg->header.stamp.isZero() ? ros::Time::now() : msg->header.stamp;
-  header.frame_id = config_.map_frame;
-  for (ecar::VoRequest& r : requests_) {
-    r.device = config_.device_id;
-    interaction_pub_.publish(ecar_bridge::toMsg(r, header));
-  }
-}
-
-void Device::onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  const char* id = config_.device_id.c_str();
-  if (msg->device_id != config_.device_id) {
-    ROS_WARN_THROTTLE(kWarnPeriod,
-                      "%s: interaction_result dropped: device_id \"%s\" is another device", id,
-                      msg->device_id.c_str());
-    return;
-  }
-  std::string what;
-  if (objects_.applyResult(ecar_bridge::fromMsg(*msg), &what)) {
-    ROS_DEBUG("%s: %s", id, what.c_str());
-  } else {
-    ROS_WARN_THROTTLE(0.5, "%s: %s", id, what.c_str());
-  }
-}
-
-void Device::onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  try {
-    graph_objects_.assign(1, ecar_bridge::fromMsg(*msg, "object"));
-    objects_.applyGraph({}, graph_objects_);
-  } catch (const ecar::Error& e) {
-    ROS_WARN_THROTTLE(kWarnPeriod, "%s: %s dropped: %s", config_.device_id.c_str(),
-                      config_.direct_objects_topic.c_str(), e.what());
-  }
-}
-
-void Device::drawObjects(const ecar::SE3& T_w_c) {
-  if (!camera_) return;
-  objects_.drawList(T_w_c, *camera_, &draw_lines_);
-  constexpr double kMaxPx = 1e7;  // beyond int range once scaled: never on screen anyway
-  for (const ecar::ScreenLine& l : draw_lines_) {
-    if (l.a.cwiseAbs().maxCoeff() > kMaxPx || l.b.cwiseAbs().maxCoeff() > kMaxPx) continue;
-    const cv::Point a(static_cast<int>(std::lround(l.a.x())),
-                      static_cast<int>(std::lround(l.a.y())));
-    const cv::Point b(static_cast<int>(std::lround(l.b.x())),
-                      static_cast<int>(std::lround(l.b.y())));
-    const int thickness = std::max(1, static_cast<int>(std::lround(l.thickness)));
-    // Strokes not acknowledged yet get a white outline.
-    if (l.pending) cv::line(ar_image_, a, b, cv::Scalar(255, 255, 255), thickness + 2, cv::LINE_AA);
-    cv::line(ar_image_, a, b, cv::Scalar(l.blue, l.green, l.red), thickness, cv::LINE_AA);
   }
 }
 

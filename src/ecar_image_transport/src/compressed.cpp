@@ -7,12 +7,12 @@
 
 #include <image_transport/simple_publisher_plugin.h>
 #include <image_transport/simple_subscriber_plugin.h>
-#include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/image_encodings.h>
 #include <opencv2/imgcodecs.hpp>
+#include <pluginlib/class_list_macros.hpp>
 
 namespace ecar_image_transport {
 namespace enc = sensor_msgs::image_encodings;
@@ -79,7 +79,8 @@ class CompressedSubscriber
       mat.release();
     }
     if (mat.empty() || mat.depth() != CV_8U || (mat.channels() != 1 && mat.channels() != 3)) {
-      ROS_WARN_THROTTLE(5.0, "%s: compressed image of %zu bytes (format '%s') does not decode "
+      ROS_WARN_THROTTLE(5.0,
+                        "%s: compressed image of %zu bytes (format '%s') does not decode "
                         "to 8-bit grey or colour: dropped",
                         getTopic().c_str(), msg->data.size(), msg->format.c_str());
       return;

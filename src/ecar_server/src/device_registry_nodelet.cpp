@@ -27,6 +27,10 @@ class DeviceRegistryNodelet : public nodelet::Nodelet {
 
  private:
   void onInit() override {
+    initialiseOrReport(getName(), [this] { initialise(); });
+  }
+
+  void initialise() {
     ros::NodeHandle& nh = getMTNodeHandle();
     const ServerConfig config = loadServerConfig(nh);
     graph_ = sharedGraph(nh.getNamespace(), config);
@@ -37,8 +41,7 @@ class DeviceRegistryNodelet : public nodelet::Nodelet {
     const double period = std::max(0.1, std::min(1.0, config.device_timeout / 4.0));
     timer_ = nh.createWallTimer(ros::WallDuration(period), &DeviceRegistryNodelet::onTimer, this);
     NODELET_INFO("device registry: %s, sync_mode %s, device_timeout %.1f s",
-                 ecar_bridge::kConnectService,
-                 config.sync_mode.c_str(), config.device_timeout);
+                 ecar_bridge::kConnectService, config.sync_mode.c_str(), config.device_timeout);
   }
 
   bool onConnect(ecar_msgs::Connect::Request& req, ecar_msgs::Connect::Response& res) {

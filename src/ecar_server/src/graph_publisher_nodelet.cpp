@@ -55,6 +55,10 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
   };
 
   void onInit() override {
+    initialiseOrReport(getName(), [this] { initialise(); });
+  }
+
+  void initialise() {
     ros::NodeHandle& nh = getMTNodeHandle();
     config_ = loadServerConfig(nh);
     graph_ = sharedGraph(nh.getNamespace(), config_);
@@ -78,9 +82,9 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
         [this](const GraphPublisherConfig& c, uint32_t) { onReconfigure(c); });
     graph_->addListener(this);
     // One subscription: its callbacks run one at a time, in order.
-    visible_sub_ = nh.subscribe(ecar_bridge::kVisibleStructureTopic, 100,
-                                &GraphPublisherNodelet::onVisible, this,
-                                ros::TransportHints().tcpNoDelay());
+    visible_sub_ =
+        nh.subscribe(ecar_bridge::kVisibleStructureTopic, 100, &GraphPublisherNodelet::onVisible,
+                     this, ros::TransportHints().tcpNoDelay());
   }
 
   void onReconfigure(const GraphPublisherConfig& c) {
@@ -97,10 +101,11 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
       auto composer = std::make_shared<const ecar::LocalGraphComposer>(next);
       std::lock_guard<std::mutex> lock(mutex_);
       composer_ = std::move(composer);
-      NODELET_INFO("local graphs: position tolerance %.4f m / %.3f deg / %.3f of depth, plane "
-                   "refresh every %d graphs",
-                   next.position_tolerance, next.position_tolerance_deg,
-                   next.position_tolerance_depth, next.plane_refresh);
+      NODELET_INFO(
+          "local graphs: position tolerance %.4f m / %.3f deg / %.3f of depth, plane "
+          "refresh every %d graphs",
+          next.position_tolerance, next.position_tolerance_deg, next.position_tolerance_depth,
+          next.plane_refresh);
     } catch (const ecar::Error& e) {
       NODELET_WARN("reconfigure refused: %s", e.what());
     }

@@ -93,6 +93,10 @@ class GridConnectionNodelet : public nodelet::Nodelet, public ecar::GraphListene
   };
 
   void onInit() override {
+    initialiseOrReport(getName(), [this] { initialise(); });
+  }
+
+  void initialise() {
     ros::NodeHandle& nh = getMTNodeHandle();
     const ServerConfig config = loadServerConfig(nh);
     graph_ = sharedGraph(nh.getNamespace(), config);
@@ -104,7 +108,8 @@ class GridConnectionNodelet : public nodelet::Nodelet, public ecar::GraphListene
                  ecar::toString(store.attachMode()));
     NODELET_INFO("virtual objects: vo_share %s; every change on %s", toString(share_),
                  ecar_bridge::kObjectsTopic);
-    objects_pub_ = nh.advertise<ecar_msgs::VirtualObject>(ecar_bridge::kObjectsTopic, kObjectsQueue);
+    objects_pub_ =
+        nh.advertise<ecar_msgs::VirtualObject>(ecar_bridge::kObjectsTopic, kObjectsQueue);
     visible_pub_ =
         nh.advertise<ecar_msgs::VisibleStructure>(ecar_bridge::kVisibleStructureTopic, 100);
     graph_->addListener(this);
@@ -114,9 +119,9 @@ class GridConnectionNodelet : public nodelet::Nodelet, public ecar::GraphListene
     // at a time (each device's in order).
     planes_sub_ = nh.subscribe(ecar_bridge::kKeyFramePlanesTopic, 200,
                                &GridConnectionNodelet::onKeyFramePlanes, this);
-    tracked_sub_ = nh.subscribe(ecar_bridge::kTrackedFrameTopic, 100,
-                                &GridConnectionNodelet::onTrackedFrame, this,
-                                ros::TransportHints().tcpNoDelay());
+    tracked_sub_ =
+        nh.subscribe(ecar_bridge::kTrackedFrameTopic, 100, &GridConnectionNodelet::onTrackedFrame,
+                     this, ros::TransportHints().tcpNoDelay());
     markers_ = std::make_unique<VoMarkerServer>(
         nh, ecar_bridge::kVoMarkersTopic, ecar_bridge::kMapFrame, config.vo_marker_drag_rate,
         [this](ecar::ObjectId id) { return graph_->vos().get(id); },

@@ -44,6 +44,10 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
 
  private:
   void onInit() override {
+    initialiseOrReport(getName(), [this] { initialise(); });
+  }
+
+  void initialise() {
     ros::NodeHandle& nh = getMTNodeHandle();
     graph_ = sharedGraph(nh.getNamespace(), loadServerConfig(nh));
     mapped_pub_ = nh.advertise<ecar_msgs::KeyFrameEvent>(ecar_bridge::kKeyFrameMappedTopic, 100);

@@ -31,6 +31,10 @@ class MapStorageNodelet : public nodelet::Nodelet {
 
  private:
   void onInit() override {
+    initialiseOrReport(getName(), [this] { initialise(); });
+  }
+
+  void initialise() {
     ros::NodeHandle& nh = getMTNodeHandle();
     const ServerConfig config = loadServerConfig(nh);
     graph_ = sharedGraph(nh.getNamespace(), config);
@@ -44,12 +48,9 @@ class MapStorageNodelet : public nodelet::Nodelet {
         NODELET_ERROR("map_file: %s; starting with an empty map", message.c_str());
       }
     }
-    save_srv_ =
-        nh.advertiseService(ecar_bridge::kSaveMapService, &MapStorageNodelet::onSave, this);
-    load_srv_ =
-        nh.advertiseService(ecar_bridge::kLoadMapService, &MapStorageNodelet::onLoad, this);
-    NODELET_INFO("map storage: %s, %s", ecar_bridge::kSaveMapService,
-                 ecar_bridge::kLoadMapService);
+    save_srv_ = nh.advertiseService(ecar_bridge::kSaveMapService, &MapStorageNodelet::onSave, this);
+    load_srv_ = nh.advertiseService(ecar_bridge::kLoadMapService, &MapStorageNodelet::onLoad, this);
+    NODELET_INFO("map storage: %s, %s", ecar_bridge::kSaveMapService, ecar_bridge::kLoadMapService);
   }
 
   bool onSave(ecar_msgs::SaveMap::Request& req, ecar_msgs::SaveMap::Response& res) {

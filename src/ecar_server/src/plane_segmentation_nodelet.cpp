@@ -30,12 +30,16 @@ class PlaneSegmentationNodelet : public nodelet::Nodelet {
 
  private:
   void onInit() override {
+    initialiseOrReport(getName(), [this] { initialise(); });
+  }
+
+  void initialise() {
     ros::NodeHandle& nh = getMTNodeHandle();
     const ServerConfig config = loadServerConfig(nh);
     graph_ = sharedGraph(nh.getNamespace(), config);
-    segmentation_ = std::make_unique<ecar::PlaneSegmentation>(graph_.get(), config.planes, kNeighbours);
-    planes_pub_ =
-        nh.advertise<ecar_msgs::KeyFramePlanes>(ecar_bridge::kKeyFramePlanesTopic, 200);
+    segmentation_ =
+        std::make_unique<ecar::PlaneSegmentation>(graph_.get(), config.planes, kNeighbours);
+    planes_pub_ = nh.advertise<ecar_msgs::KeyFramePlanes>(ecar_bridge::kKeyFramePlanesTopic, 200);
     // One subscription: keyframes are segmented one at a time, in order.
     mapped_sub_ = nh.subscribe(ecar_bridge::kKeyFrameMappedTopic, 200,
                                &PlaneSegmentationNodelet::onMapped, this);
@@ -58,10 +62,11 @@ class PlaneSegmentationNodelet : public nodelet::Nodelet {
       }
       return;
     }
-    NODELET_DEBUG("keyframe %u: %zu points, %zu planes found, %zu created, %zu updated; "
-                  "segment %.1f ms, integrate %.1f ms",
-                  event.id.value, r.points, r.observations, r.update.created.size(),
-                  r.update.updated.size(), r.segment_ms, r.integrate_ms);
+    NODELET_DEBUG(
+        "keyframe %u: %zu points, %zu planes found, %zu created, %zu updated; "
+        "segment %.1f ms, integrate %.1f ms",
+        event.id.value, r.points, r.observations, r.update.created.size(), r.update.updated.size(),
+        r.segment_ms, r.integrate_ms);
     NODELET_INFO_THROTTLE(5.0,
                           "planes: %zu in the map; keyframe %u: %zu points, %zu planes in "
                           "%.1f + %.1f ms (segment, integrate)",

@@ -90,8 +90,8 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   try {
     v.attach_mode = ecar::parseVoAttachMode(attach);
   } catch (const ecar::Error&) {
-    throw ecar::Error("server parameter '" + name + "vo/attach' must be 'grid' or 'keyframe' (got '" +
-                      attach + "')");
+    throw ecar::Error("server parameter '" + name +
+                      "vo/attach' must be 'grid' or 'keyframe' (got '" + attach + "')");
   }
   vo.read("synchronous", &v.synchronous);
   vo.read("attach_margin", &v.attach_margin);

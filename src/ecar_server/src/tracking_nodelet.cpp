@@ -45,8 +45,8 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
     const boost::function<void(const ecar_msgs::Upload::ConstPtr&)> callback =
         [this, name](const ecar_msgs::Upload::ConstPtr& msg) { onUpload(name, msg); };
     ros::Subscriber sub = getMTNodeHandle().subscribe<ecar_msgs::Upload>(
-        ecar_bridge::DeviceTopics{name}.upload(), static_cast<uint32_t>(config_.upload_queue_size), callback,
-        ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay());
+        ecar_bridge::DeviceTopics{name}.upload(), static_cast<uint32_t>(config_.upload_queue_size),
+        callback, ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay());
     std::lock_guard<std::mutex> lock(mutex_);
     subscribers_[name] = sub;
   }
@@ -66,6 +66,10 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
 
  private:
   void onInit() override {
+    initialiseOrReport(getName(), [this] { initialise(); });
+  }
+
+  void initialise() {
     ros::NodeHandle& nh = getMTNodeHandle();
     config_ = loadServerConfig(nh);
     graph_ = sharedGraph(nh.getNamespace(), config_);
@@ -109,9 +113,8 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
                             msg->frame_index, e.what());
       return;
     }
-    const bool dropped = pool_->push(device, [this, device, msg, content, received] {
-      align(device, msg, content, received);
-    });
+    const bool dropped = pool_->push(
+        device, [this, device, msg, content, received] { align(device, msg, content, received); });
     if (dropped) {
       NODELET_WARN_THROTTLE(2.0,
                             "device %s: %d uploads wait for alignment "
@@ -147,8 +150,9 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
       return;
     }
     const auto t0 = std::chrono::steady_clock::now();
-    const ecar::TrackResult result = slam->track(info->id, image, msg->header.stamp.toSec(),
-                                                 msg->frame_index, content.gravity_c, content.T_o_c);
+    const ecar::TrackResult result =
+        slam->track(info->id, image, msg->header.stamp.toSec(), msg->frame_index, content.gravity_c,
+                    content.T_o_c);
     ecar_bridge::FrameMeta meta;
     meta.device = device;
     meta.frame_index = msg->frame_index;

@@ -40,6 +40,10 @@ class VisualizerNodelet : public nodelet::Nodelet, public ecar::GraphListener {
 
  private:
   void onInit() override {
+    initialiseOrReport(getName(), [this] { initialise(); });
+  }
+
+  void initialise() {
     ros::NodeHandle& nh = getMTNodeHandle();
     const ServerConfig config = loadServerConfig(nh);
     graph_ = sharedGraph(nh.getNamespace(), config);
@@ -48,8 +52,8 @@ class VisualizerNodelet : public nodelet::Nodelet, public ecar::GraphListener {
     markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>(ecar_bridge::kMarkersTopic, 2);
     tracked_sub_ = nh.subscribe(ecar_bridge::kTrackedFrameTopic, 100,
                                 &VisualizerNodelet::onTrackedFrame, this);
-    visible_sub_ = nh.subscribe(ecar_bridge::kVisibleStructureTopic, 100,
-                                &VisualizerNodelet::onVisible, this);
+    visible_sub_ =
+        nh.subscribe(ecar_bridge::kVisibleStructureTopic, 100, &VisualizerNodelet::onVisible, this);
     if (config.marker_rate > 0.0) {
       timer_ = nh.createWallTimer(ros::WallDuration(1.0 / config.marker_rate),
                                   &VisualizerNodelet::onTimer, this);

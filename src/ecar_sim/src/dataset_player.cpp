@@ -304,7 +304,8 @@ std_msgs::Header DatasetPlayer::publishFrame(size_t i, const cv::Mat& image) {
   header.stamp = ros::Time::now();
   header.frame_id = topics_.camera_frame();
 
-  const sensor_msgs::ImagePtr image_msg = ecar_bridge::toImageMsg(image, header);  // throws before publishing
+  const sensor_msgs::ImagePtr image_msg =
+      ecar_bridge::toImageMsg(image, header);  // throws before publishing
   publishImu(i, header);
   camera_info_.header = header;
   info_pub_.publish(camera_info_);
@@ -314,7 +315,8 @@ std_msgs::Header DatasetPlayer::publishFrame(size_t i, const cv::Mat& image) {
   if (frame.T_w_c_gt) {
     std_msgs::Header tf_header = header;
     tf_header.frame_id = config_.world_frame;
-    tf_broadcaster_.sendTransform(ecar_bridge::toTransformMsg(*frame.T_w_c_gt, tf_header, topics_.gt_frame()));
+    tf_broadcaster_.sendTransform(
+        ecar_bridge::toTransformMsg(*frame.T_w_c_gt, tf_header, topics_.gt_frame()));
   }
   if (frame.T_o_c_odom) {
     geometry_msgs::PoseStamped odom;

@@ -51,8 +51,8 @@
 #include <std_msgs/UInt32.h>
 #include <tf2_ros/transform_broadcaster.h>
 
-#include "ecar_core/io/dataset.h"
 #include "ecar_bridge/topics.h"
+#include "ecar_core/io/dataset.h"
 
 namespace ecar_sim {
 

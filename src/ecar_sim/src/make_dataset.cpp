@@ -26,15 +26,15 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "ecar_core/io/dataset_writer.h"
-#include "ecar_core/common/error.h"
-#include "ecar_core/sim/motion.h"
-#include "ecar_core/sim/renderer.h"
-#include "ecar_core/sim/scene.h"
 #include "ecar_bridge/camera.h"
 #include "ecar_bridge/geometry.h"
 #include "ecar_bridge/objects.h"
 #include "ecar_bridge/topics.h"
+#include "ecar_core/common/error.h"
+#include "ecar_core/io/dataset_writer.h"
+#include "ecar_core/sim/motion.h"
+#include "ecar_core/sim/renderer.h"
+#include "ecar_core/sim/scene.h"
 
 namespace {
 

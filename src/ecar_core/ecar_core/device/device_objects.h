@@ -41,10 +41,10 @@
 #include "ecar_core/common/camera.h"
 #include "ecar_core/common/geometry.h"
 #include "ecar_core/common/touch.h"
+#include "ecar_core/common/types.h"
 #include "ecar_core/structure/grid_caster.h"
 #include "ecar_core/structure/grid_map.h"
 #include "ecar_core/structure/plane_map.h"
-#include "ecar_core/common/types.h"
 #include "ecar_core/structure/vo_store.h"
 
 namespace ecar {

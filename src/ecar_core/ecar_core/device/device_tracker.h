@@ -26,15 +26,15 @@
 #include <opencv2/core.hpp>
 
 #include "ecar_core/common/camera.h"
+#include "ecar_core/common/geometry.h"
+#include "ecar_core/common/types.h"
+#include "ecar_core/device/device_keyframe_queue.h"
 #include "ecar_core/slam/features.h"
 #include "ecar_core/slam/frame.h"
-#include "ecar_core/common/geometry.h"
 #include "ecar_core/slam/matcher.h"
 #include "ecar_core/slam/optimizer.h"
-#include "ecar_core/device/device_keyframe_queue.h"
 #include "ecar_core/slam/tracker.h"
 #include "ecar_core/sync/local_graph.h"
-#include "ecar_core/common/types.h"
 
 namespace ecar {
 

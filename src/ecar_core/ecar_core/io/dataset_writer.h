@@ -33,9 +33,9 @@
 #include <opencv2/core.hpp>
 
 #include "ecar_core/common/camera.h"
-#include "ecar_core/io/dataset.h"
 #include "ecar_core/common/geometry.h"
 #include "ecar_core/common/touch.h"
+#include "ecar_core/io/dataset.h"
 
 namespace ecar {
 

@@ -26,7 +26,6 @@ void checkVersion(ByteReader* in, const char* section, uint32_t expected) {
 
 }  // namespace
 
-
 std::vector<uint8_t> encodePlanes(const std::vector<PlaneRecord>& planes, uint32_t next_id) {
   ByteWriter out;
   out.u32(kPlanesSectionVersion);

@@ -234,8 +234,7 @@ MapCounts GlobalGraph::load(const std::string& path) {
   const MapFileReader file = MapFileReader::open(path);
   // Decode everything before anything changes.
   std::shared_ptr<SlamSystem> slam = this->slam();
-  const PinholeCamera camera =
-      slam ? slam->camera() : decodeSlamCamera(file.reader(kSlamSection));
+  const PinholeCamera camera = slam ? slam->camera() : decodeSlamCamera(file.reader(kSlamSection));
   const ScaleInfo scale = slam ? slam->map().scale() : ScaleInfo::fromConfig(config_.slam.orb);
   std::unique_ptr<Map> map = decodeSlamMap(file.reader(kSlamSection), camera, scale);
   const StructureState state = readStructureSections(file);
@@ -253,8 +252,7 @@ MapCounts GlobalGraph::load(const std::string& path) {
     slam->installMap(std::move(map));
     planes_.load(state.planes, state.next_plane_id);
     grid_.load(state.grid);
-    grid_.attachObjects(vos_->allObjects(), vos_->config().cell_size,
-                        vos_->config().attach_margin);
+    grid_.attachObjects(vos_->allObjects(), vos_->config().cell_size, vos_->config().attach_margin);
     std::lock_guard<std::mutex> lock(mutex_);
     ++generation_;
   } catch (const Error& e) {

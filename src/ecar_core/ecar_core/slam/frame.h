@@ -11,8 +11,8 @@
 #include <opencv2/core.hpp>
 
 #include "ecar_core/common/camera.h"
-#include "ecar_core/slam/features.h"
 #include "ecar_core/common/geometry.h"
+#include "ecar_core/slam/features.h"
 #include "ecar_core/slam/optimizer.h"
 
 namespace ecar {

@@ -5,8 +5,8 @@
 #include <unordered_set>
 
 #include "ecar_core/common/error.h"
-#include "ecar_core/slam/matcher.h"
 #include "ecar_core/slam/local_mapper.h"
+#include "ecar_core/slam/matcher.h"
 
 namespace ecar {
 

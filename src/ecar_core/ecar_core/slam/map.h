@@ -22,10 +22,10 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
-#include "ecar_core/slam/frame.h"
 #include "ecar_core/common/geometry.h"
-#include "ecar_core/slam/optimizer.h"
 #include "ecar_core/common/types.h"
+#include "ecar_core/slam/frame.h"
+#include "ecar_core/slam/optimizer.h"
 
 namespace ecar {
 

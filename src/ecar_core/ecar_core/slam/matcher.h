@@ -9,10 +9,10 @@
 
 #include <Eigen/Core>
 
-#include "ecar_core/slam/frame.h"
 #include "ecar_core/common/geometry.h"
-#include "ecar_core/slam/optimizer.h"
 #include "ecar_core/common/types.h"
+#include "ecar_core/slam/frame.h"
+#include "ecar_core/slam/optimizer.h"
 
 namespace ecar {
 

@@ -132,7 +132,7 @@ void GridCaster::cast(const SE3& T_w_c, const GridPlanes& planes, Emit&& emit) c
 }
 
 void GridCaster::visibleCells(const SE3& T_w_c, const GridPlanes& planes,
-                                  std::vector<CellKey>* cells) const {
+                              std::vector<CellKey>* cells) const {
   cells->clear();
   const double cell = config_.cell_size;
   cast(T_w_c, planes, [&](size_t, PlaneId, const Eigen::Vector3d& x, double) {
@@ -145,7 +145,7 @@ void GridCaster::visibleCells(const SE3& T_w_c, const GridPlanes& planes,
 }
 
 void GridCaster::castSamples(const SE3& T_w_c, const GridPlanes& planes,
-                                 std::vector<SampleHit>* hits) const {
+                             std::vector<SampleHit>* hits) const {
   hits->clear();
   const double cell = config_.cell_size;
   cast(T_w_c, planes, [&](size_t k, PlaneId id, const Eigen::Vector3d& x, double distance) {
@@ -159,8 +159,8 @@ void GridCaster::castSamples(const SE3& T_w_c, const GridPlanes& planes,
   });
 }
 
-bool GridCaster::isVisible(const SE3& T_w_c, const GridPlanes& planes,
-                               const Eigen::Vector3d& p_w, double tolerance) const {
+bool GridCaster::isVisible(const SE3& T_w_c, const GridPlanes& planes, const Eigen::Vector3d& p_w,
+                           double tolerance) const {
   if (!p_w.allFinite()) return false;
   const Eigen::Vector3d p_c = T_w_c.inverse() * p_w;
   const auto uv = camera_.project(p_c);

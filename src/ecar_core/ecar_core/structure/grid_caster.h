@@ -29,9 +29,9 @@
 
 #include "ecar_core/common/camera.h"
 #include "ecar_core/common/geometry.h"
+#include "ecar_core/common/types.h"
 #include "ecar_core/structure/grid_cells.h"
 #include "ecar_core/structure/plane.h"
-#include "ecar_core/common/types.h"
 
 namespace ecar {
 

@@ -64,8 +64,6 @@ double polygonGap(const std::vector<Eigen::Vector2d>& a, const std::vector<Eigen
   return best;
 }
 
-
-
 double medianAbsDistance(const std::vector<Eigen::Vector3d>& points, const Eigen::Vector3d& n,
                          double d) {
   std::vector<double> dist(points.size());

@@ -18,7 +18,6 @@ constexpr const char* kFormat = "ecar_vo_store";
 constexpr int kSchemaVersion = 1;
 constexpr int kBusyTimeoutMs = 1000;
 
-
 bool finiteVector(const Eigen::Vector3d& v) { return v.allFinite(); }
 
 }  // namespace
@@ -95,7 +94,8 @@ class VoDatabase::Connection {
 
   /// Replaces every row and the id counter in one transaction. Returns false
   /// with `error` set when it fails (the transaction is rolled back).
-  bool replaceAll(const std::vector<const VoRecord*>& entries, uint32_t next_id, std::string* error) {
+  bool replaceAll(const std::vector<const VoRecord*>& entries, uint32_t next_id,
+                  std::string* error) {
     return transaction(error, [&](std::string* why) {
       bool ok = exec("DELETE FROM objects", why);
       for (size_t i = 0; ok && i < entries.size(); ++i)

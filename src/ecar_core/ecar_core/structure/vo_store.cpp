@@ -499,4 +499,3 @@ void VoStore::backupTo(const std::string& path) const {
 }
 
 }  // namespace ecar
-

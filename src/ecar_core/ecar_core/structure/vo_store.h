@@ -140,7 +140,8 @@ class VoStore {
   /// base_version 0 passes when `unconditional_ok`). `entry` receives the
   /// object when it is known.
   VoReject checkExisting(ObjectId id, uint32_t base_version, bool unconditional_ok,
-                         const std::string& editor, std::string* reason, const VoRecord** entry) const;
+                         const std::string& editor, std::string* reason,
+                         const VoRecord** entry) const;
   /// Puts `record` in the keyframe index / takes it out. state_mutex_ held exclusively.
   void attach(const VoRecord& record);
   void detach(const VoRecord& record);

@@ -88,9 +88,9 @@ struct LocalGraph {
   SE3 T_w_c = SE3::Identity();  ///< server pose of the aligned image (valid when tracked)
   uint32_t map_epoch = 0;       ///< changes when the server's map is replaced
   SyncMode mode = SyncMode::kEcar;
-  std::vector<GraphPoint> points;        ///< ecar
-  std::vector<GraphPosition> positions;  ///< ecar: each of a point in `points`, in their order
-  std::vector<GraphKeyFrame> keyframes;  ///< edgeslam
+  std::vector<GraphPoint> points;         ///< ecar
+  std::vector<GraphPosition> positions;   ///< ecar: each of a point in `points`, in their order
+  std::vector<GraphKeyFrame> keyframes;   ///< edgeslam
   std::vector<GraphMapPoint> map_points;  ///< edgeslam
   std::vector<Plane> planes;              ///< near the pose, map frame
   std::vector<VirtualObject> objects;     ///< visible VOs and tombstones

@@ -163,8 +163,7 @@ bool LocalGraphComposer::movedInView(const Eigen::Vector3f& held, const Eigen::V
 }
 
 void LocalGraphComposer::addEdgeSlamPoints(const Map& map, const TrackResult& frame,
-                                           const ComposerLookups& lookups,
-                                           LocalGraph* out) const {
+                                           const ComposerLookups& lookups, LocalGraph* out) const {
   size_t n = frame.local_keyframes.size();
   if (config_.edgeslam_keyframes > 0) {
     n = std::min(n, static_cast<size_t>(config_.edgeslam_keyframes));
@@ -216,12 +215,12 @@ void LocalGraphComposer::addPlanes(const std::vector<Plane>& planes, DeviceSyncS
     const auto it = state->planes_.find(p.id);
     if (it != state->planes_.end()) {
       const DeviceSyncState::SentPlane& sent = it->second;
-      const bool changed = sent.label != now.label || sent.normal.dot(now.normal) < min_cos ||
-                           std::abs(sent.offset - now.offset) > config_.plane_resend_offset ||
-                           (sent.min - now.min).cwiseAbs().maxCoeff() > config_.plane_resend_extent ||
-                           (sent.max - now.max).cwiseAbs().maxCoeff() > config_.plane_resend_extent;
-      if (!changed &&
-          state->graphs_ - sent.graph < static_cast<uint64_t>(config_.plane_refresh)) {
+      const bool changed =
+          sent.label != now.label || sent.normal.dot(now.normal) < min_cos ||
+          std::abs(sent.offset - now.offset) > config_.plane_resend_offset ||
+          (sent.min - now.min).cwiseAbs().maxCoeff() > config_.plane_resend_extent ||
+          (sent.max - now.max).cwiseAbs().maxCoeff() > config_.plane_resend_extent;
+      if (!changed && state->graphs_ - sent.graph < static_cast<uint64_t>(config_.plane_refresh)) {
         continue;
       }
     }
@@ -243,9 +242,9 @@ void LocalGraphComposer::addObjects(const std::vector<VirtualObject>& objects,
   // they live; a deleted one gets its tombstone, once.
   std::vector<ObjectId> gone;
   for (const auto& kv : sent) {
-    const bool visible = std::binary_search(
-        objects.begin(), objects.end(), kv.first,
-        [](const auto& a, const auto& b) { return idOf(a) < idOf(b); });
+    const bool visible =
+        std::binary_search(objects.begin(), objects.end(), kv.first,
+                           [](const auto& a, const auto& b) { return idOf(a) < idOf(b); });
     if (!visible) gone.push_back(kv.first);
   }
   if (gone.empty() || !lookups.objects) return;

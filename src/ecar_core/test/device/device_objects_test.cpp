@@ -172,7 +172,8 @@ TEST(DeviceObjects, StrokeBecomesChainedLinesOnTheFloor) {
   }
   EXPECT_FALSE(objects.applyResult({"", 4, false, ObjectId(), 0, "out of the map"}, &what));
   EXPECT_NE(what.find("out of the map"), std::string::npos) << what;
-  EXPECT_FALSE(objects.applyResult({"", 4, true, ObjectId(104), 1, ""}, &what));  // answered already
+  EXPECT_FALSE(
+      objects.applyResult({"", 4, true, ObjectId(104), 1, ""}, &what));  // answered already
   EXPECT_EQ(objects.numInFlight(), 0u);
   ASSERT_EQ(objects.objects().size(), 3u);
   EXPECT_EQ(objects.object(ObjectId(102))->version, 1u);
@@ -211,7 +212,8 @@ TEST(DeviceObjects, GrabbedObjectMovesAlongItsPlane) {
   // The held copy moved at once; the accepted answer raises its version.
   EXPECT_LT((objects.object(ObjectId(5))->start - moved.start).norm(), 1e-12);
   std::string what;
-  EXPECT_TRUE(objects.applyResult({"", out[2].request_id, true, ObjectId(5), 6, ""}, &what)) << what;
+  EXPECT_TRUE(objects.applyResult({"", out[2].request_id, true, ObjectId(5), 6, ""}, &what))
+      << what;
   EXPECT_EQ(objects.object(ObjectId(5))->version, 6u);
   // An older server state (an earlier step of the drag) does not move it back.
   objects.applyGraph({}, {line(5, 5, {0.25, 3.25, 0}, {0.45, 3.25, 0})});

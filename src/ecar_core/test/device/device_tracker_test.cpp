@@ -13,11 +13,11 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/eval/trajectory_eval.h"
 #include "ecar_core/sim/motion.h"
 #include "ecar_core/sim/renderer.h"
 #include "ecar_core/slam/slam_system.h"
 #include "ecar_core/sync/local_graph_composer.h"
-#include "ecar_core/eval/trajectory_eval.h"
 
 namespace ecar {
 namespace {
@@ -138,7 +138,8 @@ void quantise(LocalGraph* g) {
   for (GraphPoint& p : g->points) {
     p.u = std::round(p.u * 8.0f) / 8.0f;
     p.v = std::round(p.v * 8.0f) / 8.0f;
-    p.angle = static_cast<float>(static_cast<int>(std::lround(p.angle / 1.40625f)) % 256) * 1.40625f;
+    p.angle =
+        static_cast<float>(static_cast<int>(std::lround(p.angle / 1.40625f)) % 256) * 1.40625f;
   }
 }
 

@@ -12,12 +12,12 @@
 #include <gtest/gtest.h>
 
 #include "ecar_core/common/error.h"
-#include "ecar_core/structure/grid_caster.h"
-#include "ecar_core/structure/grid_cells.h"
-#include "ecar_core/structure/grid_map.h"
 #include "ecar_core/io/map_file.h"
 #include "ecar_core/io/slam_map_codec.h"
 #include "ecar_core/io/structure_codec.h"
+#include "ecar_core/structure/grid_caster.h"
+#include "ecar_core/structure/grid_cells.h"
+#include "ecar_core/structure/grid_map.h"
 #include "ecar_core/structure/plane_map.h"
 #include "ecar_core/structure/vo_store.h"
 #include "test_support.h"
@@ -205,8 +205,8 @@ TEST(MapIoStructure, RoundTripKeepsEverythingAndSurvivesReopening) {
     // Attachments are rebuilt: the moved line is in its new cells, on its keyframe.
     const VirtualObject moved = *store2.get(ObjectId(1));
     EXPECT_EQ(moved.version, 3u);
-    EXPECT_EQ(grid2.cellsOfObject(ObjectId(1)), attachmentCells(*store.get(ObjectId(1)), 0.1,
-                                                                 store.config().attach_margin));
+    EXPECT_EQ(grid2.cellsOfObject(ObjectId(1)),
+              attachmentCells(*store.get(ObjectId(1)), 0.1, store.config().attach_margin));
     EXPECT_EQ(grid2.objectsInCells({cellOf(moved.position, 0.1)}).size(), 1u);
     EXPECT_EQ(store2.objectsOfKeyFrames({KeyFrameId(5)}).size(), 1u);
     EXPECT_TRUE(grid2.cellsOfObject(ObjectId(3)).empty());  // the tombstone

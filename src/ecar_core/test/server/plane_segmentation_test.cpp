@@ -37,7 +37,8 @@ class PlaneSegmentationTest : public ::testing::Test {
       kf.T_c_w = T_w_c.inverse();
       kf.features.keypoints.resize(n);
       kf.points.resize(n);
-      if (gravity) kf.features.gravity_c = 9.81 * (T_w_c.linear().transpose() * Eigen::Vector3d::UnitZ());
+      if (gravity)
+        kf.features.gravity_c = 9.81 * (T_w_c.linear().transpose() * Eigen::Vector3d::UnitZ());
       return map.addKeyFrame(std::move(kf));
     };
     kf1 = keyframeWith(0.0, floor.size(), true);

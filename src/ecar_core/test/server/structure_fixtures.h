@@ -10,8 +10,8 @@
 
 #include "ecar_core/common/camera.h"
 #include "ecar_core/common/geometry.h"
-#include "ecar_core/structure/plane.h"
 #include "ecar_core/common/types.h"
+#include "ecar_core/structure/plane.h"
 
 namespace ecar::testing {
 

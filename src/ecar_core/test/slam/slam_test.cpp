@@ -10,10 +10,10 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
+#include "ecar_core/eval/trajectory_eval.h"
 #include "ecar_core/io/dataset.h"
 #include "ecar_core/sim/motion.h"
 #include "ecar_core/sim/renderer.h"
-#include "ecar_core/eval/trajectory_eval.h"
 
 namespace ecar {
 namespace {

@@ -2,9 +2,9 @@
 // rejection and its reason; grid attachment against analytic cells; keyframe
 // attachment; reload from SQLite; acknowledged changes surviving a SIGKILL;
 // corrupt, foreign and locked database files.
+#include "ecar_core/structure/vo_store.h"
 #include "ecar_core/structure/grid_cells.h"
 #include "ecar_core/structure/grid_map.h"
-#include "ecar_core/structure/vo_store.h"
 
 #include <signal.h>
 #include <sys/wait.h>
@@ -520,8 +520,9 @@ TEST(VoStorePersistence, ReloadsEveryObjectAndTheIdCounter) {
   ASSERT_EQ(loaded.size(), saved.size());
   for (size_t i = 0; i < saved.size(); ++i) {
     expectSame(loaded[i], saved[i]);
-    EXPECT_EQ(loaded[i].deleted ? std::vector<CellKey>()
-                                : attachmentCells(loaded[i], config.cell_size, config.attach_margin),
+    EXPECT_EQ(loaded[i].deleted
+                  ? std::vector<CellKey>()
+                  : attachmentCells(loaded[i], config.cell_size, config.attach_margin),
               cells[i]);
   }
   EXPECT_EQ(reopened.get(ObjectId(3))->version, 3u);

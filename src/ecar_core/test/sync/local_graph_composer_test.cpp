@@ -283,8 +283,7 @@ TEST_F(LocalGraphTest, EcarPayloadPerPointIsSmall) {
   EXPECT_LE(static_cast<double>(total) / tracked, 20.0);
   DeviceSyncState other;
   const auto edge = build(trackedResult(0, 20), SyncMode::kEdgeSlam, &other);
-  EXPECT_GE(bytes(edge),
-            6 * bytes(build(trackedResult(0, 20), SyncMode::kEcar, &mirror)));
+  EXPECT_GE(bytes(edge), 6 * bytes(build(trackedResult(0, 20), SyncMode::kEcar, &mirror)));
 }
 
 // A floor plane (id, version) with a 4 x 2 m boundary offset by `shift` in x.
@@ -295,8 +294,8 @@ Plane floorPlane(uint32_t id, uint32_t version, double shift = 0.0, double offse
   p.normal = Eigen::Vector3d::UnitZ();
   p.offset = offset;
   p.version = version;
-  p.boundary = {{shift, -1, -offset}, {shift + 4, -1, -offset}, {shift + 4, 1, -offset},
-                {shift, 1, -offset}};
+  p.boundary = {
+      {shift, -1, -offset}, {shift + 4, -1, -offset}, {shift + 4, 1, -offset}, {shift, 1, -offset}};
   return p;
 }
 
@@ -330,8 +329,8 @@ TEST_F(LocalGraphTest, PlanesAreResentOnlyWhenTheyChangeVisiblyOrAsARefresh) {
             (std::vector<PlaneId>{PlaneId(1), PlaneId(2)}));
   // A label change or a 2 degree turn is a visible change too.
   Plane turned = floorPlane(1, 4, 0.0, 0.03);
-  turned.normal = Eigen::AngleAxisd(2.0 * M_PI / 180.0, Eigen::Vector3d::UnitX()) *
-                  Eigen::Vector3d::UnitZ();
+  turned.normal =
+      Eigen::AngleAxisd(2.0 * M_PI / 180.0, Eigen::Vector3d::UnitX()) * Eigen::Vector3d::UnitZ();
   Plane relabelled = floorPlane(2, 4, 10.3);
   relabelled.label = PlaneLabel::kOther;
   planes = {turned, relabelled};
@@ -466,8 +465,12 @@ TEST_F(LocalGraphTest, ASyntheticSessionInBothModes) {
       const int first = std::min(5 * (upload % 6), 5 * (kKeyFrames - 1));
       const TrackResult r = trackedResult(first, 20);
       std::vector<VirtualObject> visible;
-      if (upload == 4) ASSERT_TRUE(store.manipulate(id, 1, anchorAt(3.5), "device_2").accepted);
-      if (upload == 8) ASSERT_TRUE(store.remove(id, 2, "device_2").accepted);
+      if (upload == 4) {
+        ASSERT_TRUE(store.manipulate(id, 1, anchorAt(3.5), "device_2").accepted);
+      }
+      if (upload == 8) {
+        ASSERT_TRUE(store.remove(id, 2, "device_2").accepted);
+      }
       if (upload >= 2) {
         for (const auto& vo : store.objects({id})) {
           if (!vo.deleted) visible.push_back(vo);
@@ -498,7 +501,9 @@ TEST_F(LocalGraphTest, ASyntheticSessionInBothModes) {
       if (mode == SyncMode::kEcar) {
         EXPECT_EQ(g->points.size(), 20u);
         EXPECT_TRUE(g->map_points.empty());
-        if (upload == 6) EXPECT_EQ(g->positions.size(), 20u);
+        if (upload == 6) {
+          EXPECT_EQ(g->positions.size(), 20u);
+        }
       } else {
         EXPECT_TRUE(g->points.empty());
         EXPECT_TRUE(g->positions.empty());

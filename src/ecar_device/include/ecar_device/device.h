@@ -200,8 +200,8 @@ class Device {
   ros::Time last_image_stamp_;
   bool tracking_ok_ = false;  ///< the latest frame was tracked
   ecar::DeviceObjects objects_;
-  std::vector<ecar::VoRequest> requests_;     ///< scratch of onTouch
-  std::vector<ecar::ScreenLine> draw_lines_;  ///< scratch of drawObjects
+  std::vector<ecar::VoRequest> requests_;           ///< scratch of onTouch
+  std::vector<ecar::ScreenLine> draw_lines_;        ///< scratch of drawObjects
   std::vector<ecar::VirtualObject> graph_objects_;  ///< scratch of onDirectObject
   std::string interaction_topic_;
 

@@ -2,10 +2,12 @@
 // process-wide global graph the nodelets of one manager share.
 #pragma once
 
+#include <exception>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include <ros/console.h>
 #include <ros/node_handle.h>
 
 #include "ecar_core/server/global_graph.h"
@@ -38,5 +40,19 @@ std::shared_ptr<ecar::GlobalGraph> sharedGraph(const std::string& key, const Ser
 
 /// Seconds on a monotonic clock (device timeouts).
 double steadySeconds();
+
+/// Runs a nodelet's initialisation. nodelet's manager swallows an exception
+/// thrown by onInit (its loader only says "Failed to load"), so this logs it as
+/// FATAL, naming the nodelet and the reason (a bad parameter, a VO database
+/// another server holds, ...), and rethrows so that the load fails.
+template <typename Initialise>
+void initialiseOrReport(const std::string& nodelet, Initialise initialise) {
+  try {
+    initialise();
+  } catch (const std::exception& e) {
+    ROS_FATAL("%s: cannot start: %s", nodelet.c_str(), e.what());
+    throw;
+  }
+}
 
 }  // namespace ecar_server

@@ -1,0 +1,99 @@
+// The virtual-object side of Device: touches (strokes and drags sent as
+// interactions), interaction results, VO states relayed straight to the
+// device, and the drawing of the held VOs into ar_view.
+#include "ecar_device/device.h"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include <std_msgs/Header.h>
+#include <opencv2/imgproc.hpp>
+
+#include <ecar_msgs/Interaction.h>
+#include <ecar_msgs/InteractionResult.h>
+#include <ecar_msgs/Touch.h>
+#include <ecar_msgs/VirtualObject.h>
+
+#include "device_internal.h"
+#include "ecar_bridge/objects.h"
+#include "ecar_core/common/error.h"
+
+namespace ecar_device {
+
+using device_internal::kWarnPeriod;
+
+void Device::onTouch(const ecar_msgs::TouchConstPtr& msg) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const char* id = config_.device_id.c_str();
+  ecar::Touch touch;
+  try {
+    touch = ecar_bridge::fromMsg(*msg);
+  } catch (const ecar::Error& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: touch dropped: %s", id, e.what());
+    return;
+  }
+  // A stroke or drag goes on from the last pose; a new one needs a recent pose.
+  const bool begin = msg->phase == ecar_msgs::Touch::BEGIN;
+  if (!camera_ || !T_w_c_ ||
+      (begin && (last_image_stamp_ - pose_stamp_).toSec() > config_.touch_pose_timeout)) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: touch dropped: no pose within ~touch_pose_timeout", id);
+    return;
+  }
+  requests_.clear();
+  objects_.touch(touch, *T_w_c_, *camera_, &requests_);
+  std_msgs::Header header;
+  header.stamp = msg->header.stamp.isZero() ? ros::Time::now() : msg->header.stamp;
+  header.frame_id = config_.map_frame;
+  for (ecar::VoRequest& r : requests_) {
+    r.device = config_.device_id;
+    interaction_pub_.publish(ecar_bridge::toMsg(r, header));
+  }
+}
+
+void Device::onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const char* id = config_.device_id.c_str();
+  if (msg->device_id != config_.device_id) {
+    ROS_WARN_THROTTLE(kWarnPeriod,
+                      "%s: interaction_result dropped: device_id \"%s\" is another device", id,
+                      msg->device_id.c_str());
+    return;
+  }
+  std::string what;
+  if (objects_.applyResult(ecar_bridge::fromMsg(*msg), &what)) {
+    ROS_DEBUG("%s: %s", id, what.c_str());
+  } else {
+    ROS_WARN_THROTTLE(0.5, "%s: %s", id, what.c_str());
+  }
+}
+
+void Device::onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  try {
+    graph_objects_.assign(1, ecar_bridge::fromMsg(*msg, "object"));
+    objects_.applyGraph({}, graph_objects_);
+  } catch (const ecar::Error& e) {
+    ROS_WARN_THROTTLE(kWarnPeriod, "%s: %s dropped: %s", config_.device_id.c_str(),
+                      config_.direct_objects_topic.c_str(), e.what());
+  }
+}
+
+void Device::drawObjects(const ecar::SE3& T_w_c) {
+  if (!camera_) return;
+  objects_.drawList(T_w_c, *camera_, &draw_lines_);
+  constexpr double kMaxPx = 1e7;  // beyond int range once scaled: never on screen anyway
+  for (const ecar::ScreenLine& l : draw_lines_) {
+    if (l.a.cwiseAbs().maxCoeff() > kMaxPx || l.b.cwiseAbs().maxCoeff() > kMaxPx) continue;
+    const cv::Point a(static_cast<int>(std::lround(l.a.x())),
+                      static_cast<int>(std::lround(l.a.y())));
+    const cv::Point b(static_cast<int>(std::lround(l.b.x())),
+                      static_cast<int>(std::lround(l.b.y())));
+    const int thickness = std::max(1, static_cast<int>(std::lround(l.thickness)));
+    // Strokes not acknowledged yet get a white outline.
+    if (l.pending) cv::line(ar_image_, a, b, cv::Scalar(255, 255, 255), thickness + 2, cv::LINE_AA);
+    cv::line(ar_image_, a, b, cv::Scalar(l.blue, l.green, l.red), thickness, cv::LINE_AA);
+  }
+}
+
+}  // namespace ecar_device
