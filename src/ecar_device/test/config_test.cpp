@@ -3,34 +3,13 @@
 #include <string>
 
 #include <gtest/gtest.h>
-#include <yaml-cpp/yaml.h>
 
+#include "ecar_bridge/params.h"
 #include "ecar_core/common/error.h"
 #include "ecar_device/device.h"
 
 namespace ecar_device {
 namespace {
-
-/// YAML scalars and maps as rosparam would hold them.
-XmlRpc::XmlRpcValue toXmlRpc(const YAML::Node& node) {
-  if (node.IsMap()) {
-    XmlRpc::XmlRpcValue v;
-    for (const auto& kv : node) v[kv.first.as<std::string>()] = toXmlRpc(kv.second);
-    return v;
-  }
-  const std::string s = node.as<std::string>();
-  if (node.Tag() == "!" || s.empty()) return XmlRpc::XmlRpcValue(s);  // quoted string
-  if (s == "true" || s == "false") return XmlRpc::XmlRpcValue(s == "true");
-  try {
-    size_t used = 0;
-    const int i = std::stoi(s, &used);
-    if (used == s.size()) return XmlRpc::XmlRpcValue(i);
-    const double d = std::stod(s, &used);
-    if (used == s.size()) return XmlRpc::XmlRpcValue(d);
-  } catch (const std::exception&) {
-  }
-  return XmlRpc::XmlRpcValue(s);
-}
 
 std::string errorOf(const XmlRpc::XmlRpcValue& params) {
   try {
@@ -51,9 +30,9 @@ TEST(DeviceConfigTest, DefaultsComeFromTheNamespace) {
 }
 
 TEST(DeviceConfigTest, ShippedYamlHasOnlyKnownKeysWithTheDefaults) {
-  const YAML::Node yaml = YAML::LoadFile(ECAR_REPO_ROOT "/config/device.yaml");
   std::vector<std::string> unknown;
-  const DeviceConfig c = parseDeviceConfig(toXmlRpc(yaml), "/device_0", &unknown);
+  const DeviceConfig c = parseDeviceConfig(
+      ecar_bridge::paramsFromYaml(ECAR_REPO_ROOT "/config/device.yaml"), "/device_0", &unknown);
   EXPECT_TRUE(unknown.empty()) << unknown.front();
   const DeviceConfig d = parseDeviceConfig(XmlRpc::XmlRpcValue(), "/device_0", nullptr);
   EXPECT_EQ(c.every, d.every);

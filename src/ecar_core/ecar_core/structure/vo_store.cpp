@@ -281,20 +281,8 @@ VoOutcome VoStore::manipulate(ObjectId id, uint32_t base_version, const VirtualO
   if (code != VoReject::kNone) return reject(code, reason, id, current);
   entry.vo.id = id;
   entry.vo.owner = old->vo.owner;
-  entry.vo.version = current + 1;
   entry.vo.deleted = false;
-  if (editor.empty() || editor != old->last_editor) entry.editor_since = current;
-  entry.last_editor = editor;
-  std::string error;
-  if (!db_->write(entry, std::nullopt, &error)) {
-    return reject(VoReject::kStorage, "database write failed: " + error, id, current);
-  }
-  std::unique_lock<std::shared_mutex> state(state_mutex_);
-  VoRecord& stored = objects_.at(id);
-  detach(stored);
-  stored = std::move(entry);
-  attach(stored);
-  return accept(id, current + 1);
+  return commitVersion(std::move(entry), *old, editor);
 }
 
 VoOutcome VoStore::remove(ObjectId id, uint32_t base_version, const std::string& editor) {
@@ -305,9 +293,16 @@ VoOutcome VoStore::remove(ObjectId id, uint32_t base_version, const std::string&
   const uint32_t current = old ? old->vo.version : 0;
   if (code != VoReject::kNone) return reject(code, reason, id, current);
   VoRecord entry = *old;
-  entry.vo.version = current + 1;
   entry.vo.deleted = true;
-  if (editor.empty() || editor != old->last_editor) entry.editor_since = current;
+  return commitVersion(std::move(entry), *old, editor);
+}
+
+VoOutcome VoStore::commitVersion(VoRecord entry, const VoRecord& old, const std::string& editor) {
+  const ObjectId id = old.vo.id;
+  const uint32_t current = old.vo.version;
+  const bool was_live = !old.vo.deleted;
+  entry.vo.version = current + 1;
+  if (editor.empty() || editor != old.last_editor) entry.editor_since = current;
   entry.last_editor = editor;
   std::string error;
   if (!db_->write(entry, std::nullopt, &error)) {
@@ -317,7 +312,8 @@ VoOutcome VoStore::remove(ObjectId id, uint32_t base_version, const std::string&
   VoRecord& stored = objects_.at(id);
   detach(stored);
   stored = std::move(entry);
-  --num_live_;
+  if (!stored.vo.deleted) attach(stored);
+  if (was_live && stored.vo.deleted) --num_live_;
   return accept(id, current + 1);
 }
 

@@ -142,6 +142,10 @@ class VoStore {
   VoReject checkExisting(ObjectId id, uint32_t base_version, bool unconditional_ok,
                          const std::string& editor, std::string* reason,
                          const VoRecord** entry) const;
+  /// Writes `entry` as the next version of `old` (edited by `editor`) to the
+  /// database, then in memory; a failed write changes nothing (kStorage).
+  /// write_mutex_ held.
+  VoOutcome commitVersion(VoRecord entry, const VoRecord& old, const std::string& editor);
   /// Puts `record` in the keyframe index / takes it out. state_mutex_ held exclusively.
   void attach(const VoRecord& record);
   void detach(const VoRecord& record);
