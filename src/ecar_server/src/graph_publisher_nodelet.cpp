@@ -65,16 +65,18 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
     composer_ = std::make_shared<const ecar::LocalGraphComposer>(config_.composerConfig());
     reconfigure_ = std::make_unique<dynamic_reconfigure::Server<GraphPublisherConfig>>(
         reconfigure_mutex_, getMTPrivateNodeHandle());
-    GraphPublisherConfig initial;
-    initial.position_tolerance = config_.position_tolerance;
-    initial.position_tolerance_deg = config_.position_tolerance_deg;
-    initial.position_tolerance_depth = config_.position_tolerance_depth;
-    initial.edgeslam_keyframes = config_.edgeslam_keyframes;
-    initial.graph_plane_refresh = config_.graph_plane_refresh;
-    initial.plane_resend_angle_deg = config_.plane_resend_angle_deg;
-    initial.plane_resend_offset = config_.plane_resend_offset;
-    initial.plane_resend_extent = config_.plane_resend_extent;
     {
+      // The startup values are config/server.yaml's, as the composer holds them.
+      const ecar::LocalGraphComposerConfig& c = composer_->config();
+      GraphPublisherConfig initial;
+      initial.position_tolerance = c.position_tolerance;
+      initial.position_tolerance_deg = c.position_tolerance_deg;
+      initial.position_tolerance_depth = c.position_tolerance_depth;
+      initial.edgeslam_keyframes = c.edgeslam_keyframes;
+      initial.graph_plane_refresh = c.plane_refresh;
+      initial.plane_resend_angle_deg = c.plane_resend_angle_deg;
+      initial.plane_resend_offset = c.plane_resend_offset;
+      initial.plane_resend_extent = c.plane_resend_extent;
       std::lock_guard<boost::recursive_mutex> lock(reconfigure_mutex_);
       reconfigure_->updateConfig(initial);
     }

@@ -12,8 +12,8 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
-#include "ecar_core/io/dataset_writer.h"
 #include "ecar_core/common/error.h"
+#include "ecar_core/io/dataset_writer.h"
 
 namespace ecar {
 namespace {

@@ -16,8 +16,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "ecar_core/common/error.h"
-#include "ecar_core/slam/features.h"
 #include "ecar_core/sim/renderer.h"
+#include "ecar_core/slam/features.h"
 
 namespace ecar {
 namespace {

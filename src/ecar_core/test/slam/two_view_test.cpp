@@ -1,5 +1,5 @@
-#include "ecar_core/slam/pnp.h"
 #include "ecar_core/slam/two_view.h"
+#include "ecar_core/slam/pnp.h"
 
 #include <algorithm>
 #include <cmath>
