@@ -94,7 +94,7 @@ bool projectInImage(const ecar::Intrinsics& K, const SE3& T_c_w, const Eigen::Ve
 BaProblem makeLocalWindow(const Args& a, unsigned seed, std::vector<SE3>* truth_out) {
   std::mt19937 rng(seed);
   BaProblem ba;
-  ba.K = makeK();
+  const ecar::Intrinsics K = makeK();
   const int nk = a.fixed + a.keyframes;
   std::vector<SE3> truth;
   for (int k = 0; k < nk; ++k) {
@@ -102,6 +102,7 @@ BaProblem makeLocalWindow(const Args& a, unsigned seed, std::vector<SE3>* truth_
     const Eigen::Vector3d target = eye + Eigen::Vector3d(2.0 * std::sin(0.1 * k), 10.0, 0.0);
     truth.push_back(ecar::lookAt(eye, target).inverse());
     BaProblem::KeyFrame kf;
+    kf.K = K;
     kf.fixed = k < a.fixed;
     kf.T_c_w = kf.fixed ? truth.back() : perturb(truth.back(), 0.05, 0.5 * M_PI / 180.0, &rng);
     ba.keyframes.push_back(kf);
@@ -114,7 +115,7 @@ BaProblem makeLocalWindow(const Args& a, unsigned seed, std::vector<SE3>* truth_
     std::vector<Eigen::Vector2d> uvs;
     Eigen::Vector2d uv;
     for (int k = 0; k < nk; ++k) {
-      if (projectInImage(ba.K, truth[k], p_w, &uv)) {
+      if (projectInImage(K, truth[k], p_w, &uv)) {
         visible.push_back(k);
         uvs.push_back(uv);
       }

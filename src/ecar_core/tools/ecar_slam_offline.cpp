@@ -6,7 +6,8 @@
 //                     [--gravity-sigma DEG]
 //
 // Every Nth frame of each dataset is (optionally) JPEG-compressed at quality Q,
-// decoded, and tracked; several datasets run interleaved by time into one map.
+// decoded, and tracked; several datasets run interleaved by time into one map,
+// each device with its own camera (its dataset's camera.yaml).
 // Prints and writes (JSON): uploads tracked / total, initialisation upload,
 // relocalisations, keyframes, map points, ATE against the ground truth (Sim(3)
 // without metric odometry, SE(3) with it; one transform for all devices), the
@@ -75,7 +76,8 @@ void usage(std::ostream& os) {
         "  --every N         track every Nth frame (the server sees every 4th)\n"
         "  --jpeg-quality Q  JPEG-compress each image at quality Q (1-100) first\n"
         "  --frames N        only the first N frames of each dataset\n"
-        "  --devices DIR...  more datasets, run interleaved into the same map\n"
+        "  --devices DIR...  more datasets (each with its own camera.yaml), run interleaved into\n"
+        "                    the same map\n"
         "  --no-odometry     ignore the datasets' odometry (scale from median depth)\n"
         "  --threads         local mapping on its own thread (default: after each keyframe)\n"
         "  --verbose         one line per upload (state, tracked points, why it failed)\n"
@@ -196,7 +198,7 @@ std::string deviceTrajectoryPath(const std::string& out, size_t device, size_t c
 // Sets first_overlap_upload of every device that did not start the map (see
 // the file comment).
 void firstOverlapUploads(const ecar::SlamSystem& slam, const ecar::Sim3& S,
-                         const ecar::PinholeCamera& camera, std::vector<DeviceRun>* runs) {
+                         std::vector<DeviceRun>* runs) {
   struct Observed {
     Eigen::Vector3d p;                                               // ground-truth frame
     std::vector<std::tuple<size_t, double, Eigen::Vector3d>> views;  // device, time, centre
@@ -226,9 +228,9 @@ void firstOverlapUploads(const ecar::SlamSystem& slam, const ecar::Sim3& S,
   }
   // The range the SLAM itself maps at: 90% of the map's observations are closer.
   const double range = ecar::percentile(observation_distances, 0.9);
-  const ecar::Intrinsics K = ecar::intrinsicsOf(camera);
   for (size_t d = 0; d < runs->size(); ++d) {
     DeviceRun& r = (*runs)[d];
+    const ecar::PinholeCamera& camera = r.dataset.camera();
     if (r.init_upload >= 0) continue;  // it started the map
     r.overlap_range_m = range;
     for (size_t u = 0; u < r.uploads.size(); ++u) {
@@ -241,8 +243,8 @@ void firstOverlapUploads(const ecar::SlamSystem& slam, const ecar::Sim3& S,
       for (const auto& o : points) {
         const Eigen::Vector3d pc = T_c_w * o.p;
         if (pc.z() < 0.1) continue;
-        const double x = K.fx * pc.x() / pc.z() + K.cx, y = K.fy * pc.y() / pc.z() + K.cy;
-        if (x < 0 || y < 0 || x >= camera.width() || y >= camera.height()) continue;
+        const std::optional<Eigen::Vector2d> uv = camera.project(pc);
+        if (!uv || !camera.inImage(*uv)) continue;
         const double dist = (o.p - c).norm();
         if (dist > range) continue;
         for (const auto& [device, time, centre] : o.views) {
@@ -271,18 +273,15 @@ int run(const Args& args) {
     for (size_t i = 0; i < n; i += args.every) r.uploads.push_back(i);
     runs.push_back(std::move(r));
   }
-  const ecar::PinholeCamera camera = runs.front().dataset.camera();
-  for (const auto& r : runs) {
-    if (r.dataset.camera().width() != camera.width() ||
-        r.dataset.camera().height() != camera.height()) {
-      throw ecar::Error(r.dataset.dir() + ": camera differs from the first dataset's");
-    }
-  }
   ecar::SlamConfig config;
   config.synchronous_mapping = !args.threads;
   if (args.orb_features > 0) config.orb.num_features = args.orb_features;
   if (args.gravity_sigma_deg >= 0.0) config.ba.gravity_sigma_deg = args.gravity_sigma_deg;
-  ecar::SlamSystem slam(camera, config);
+  // Each device with its own camera (its dataset's camera.yaml).
+  ecar::SlamSystem slam(runs.front().dataset.camera(), config);
+  for (size_t d = 0; d < runs.size(); ++d) {
+    slam.setCamera(ecar::DeviceId(static_cast<uint32_t>(d + 1)), runs[d].dataset.camera());
+  }
   bool metric = args.use_odometry;
   for (const auto& r : runs) {
     if (r.dataset.size() == 0 || !r.dataset.frame(0).T_o_c_odom) metric = false;
@@ -381,7 +380,7 @@ int run(const Args& args) {
       std::cerr << "ecar_slam_offline: no ATE: " << e.what() << "\n";
     }
   }
-  if (have_ate) firstOverlapUploads(slam, S, camera, &runs);
+  if (have_ate) firstOverlapUploads(slam, S, &runs);
   std::printf("map: %zu keyframes, %zu map points (%.1f s wall)\n", slam.map().numKeyFrames(),
               slam.map().numPoints(), wall_s);
   std::vector<double> all_errors, all_tilt;

@@ -44,7 +44,9 @@ void ServerConfig::validate() const {
   if (!(gravity_sigma_deg >= 0.0) || gravity_sigma_deg > 90.0) {
     fail("gravity_sigma_deg", "must be in [0, 90] degrees");
   }
-  if (!(camera_tolerance >= 0.0)) fail("camera_tolerance", "must be >= 0");
+  if (!(camera_tolerance >= 0.0 && camera_tolerance < 1.0)) {
+    fail("camera_tolerance", "must be in [0, 1)");
+  }
   if (graph_plane_refresh < 1) fail("planes/graph_plane_refresh", "must be >= 1");
   try {
     composerConfig().validate();

@@ -155,7 +155,9 @@ class GridConnectionNodelet : public nodelet::Nodelet, public ecar::GraphListene
     auto out = boost::make_shared<ecar_msgs::VisibleStructure>();
     out->frame = *msg;
     try {
-      const ecar::VisibleStructure v = grid_->visible(ecar_bridge::fromMsg(*msg));
+      ecar_bridge::FrameMeta meta;
+      const ecar::TrackResult frame = ecar_bridge::fromMsg(*msg, &meta);
+      const ecar::VisibleStructure v = grid_->visible(frame, meta.device);
       ecar_bridge::toMsg(v, out.get());
       ++stats_count_;
       stats_sum_ms_ += v.milliseconds;

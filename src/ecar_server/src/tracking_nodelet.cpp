@@ -141,12 +141,13 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
                             msg->frame_index, e.what());
       return;
     }
-    if (image.cols != slam->camera().width() || image.rows != slam->camera().height()) {
+    const ecar::CameraPtr camera = slam->camera(info->id);
+    if (image.cols != camera->width() || image.rows != camera->height()) {
       NODELET_WARN_THROTTLE(2.0,
                             "device %s: upload frame %u: image is %dx%d, not the connected "
                             "camera's %dx%d: dropped",
                             device.c_str(), msg->frame_index, image.cols, image.rows,
-                            slam->camera().width(), slam->camera().height());
+                            camera->width(), camera->height());
       return;
     }
     const auto t0 = std::chrono::steady_clock::now();

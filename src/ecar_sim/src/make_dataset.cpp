@@ -189,7 +189,8 @@ int run(const Options& o) {
   ecar::Scene scene = ecar::loadScene(o.scene);
   if (o.seed) scene.texture.seed = *o.seed;
   const ecar::DeviceSpec& device = scene.device(o.device);
-  std::vector<ecar::MotionSample> motion = ecar::generateMotion(scene, device, scene.camera.fps);
+  const ecar::CameraParams& camera = scene.cameraOf(device);  // its own, or the scene's
+  std::vector<ecar::MotionSample> motion = ecar::generateMotion(scene, device, camera.fps);
   const size_t total_frames = motion.size();
   if (o.frames > 0 && static_cast<size_t>(o.frames) < motion.size()) motion.resize(o.frames);
   // Stamps at the microsecond resolution of rgb.txt, so a frame, its IMU
@@ -199,7 +200,7 @@ int run(const Options& o) {
   for (const ecar::MotionSample& m : motion) frames.push_back({m.timestamp, m.T_w_c});
   const std::vector<ecar::TouchEvent> touches =
       ecar::scriptTouches(scene, device, frames, total_frames);
-  const ecar::Renderer renderer(scene);
+  const ecar::Renderer renderer(scene, ecar::PinholeCamera(camera));
   ecar::DatasetWriter writer(o.out, renderer.camera());
   ContactSheet sheet(static_cast<int>(motion.size()), 4, 3,
                      cv::Size(renderer.camera().width(), renderer.camera().height()));
@@ -250,7 +251,7 @@ int run(const Options& o) {
   }();
   std::printf("dataset:       %s\n", std::filesystem::absolute(o.out).c_str());
   std::printf("frames:        %zu (%.1f s at %.0f fps, %.1f m travelled)\n", motion.size(),
-              motion.empty() ? 0.0 : motion.back().timestamp, scene.camera.fps, length);
+              motion.empty() ? 0.0 : motion.back().timestamp, camera.fps, length);
   std::printf("contact sheet: %s\n", std::filesystem::absolute(sheet_path).c_str());
   if (!touches.empty()) {
     std::printf("touches:       %zu scripted (touches.txt)\n", touches.size());

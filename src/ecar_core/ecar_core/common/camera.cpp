@@ -2,6 +2,8 @@
 
 #include <cmath>
 #include <fstream>
+#include <limits>
+#include <sstream>
 
 #include <Eigen/LU>
 
@@ -12,9 +14,9 @@
 namespace ecar {
 
 PinholeCamera::PinholeCamera(const CameraParams& params) : p_(params) {
-  if (p_.width <= 0 || p_.height <= 0) {
-    throw Error("camera: width and height must be positive (got " + std::to_string(p_.width) + "x" +
-                std::to_string(p_.height) + ")");
+  if (p_.width <= 0 || p_.height <= 0 || p_.width > kMaxCameraSide || p_.height > kMaxCameraSide) {
+    throw Error("camera: width and height must be in 1.." + std::to_string(kMaxCameraSide) +
+                " (got " + std::to_string(p_.width) + "x" + std::to_string(p_.height) + ")");
   }
   if (!(p_.fx > 0) || !(p_.fy > 0) || !std::isfinite(p_.fx) || !std::isfinite(p_.fy)) {
     throw Error("camera: fx and fy must be positive and finite");
@@ -24,6 +26,67 @@ PinholeCamera::PinholeCamera(const CameraParams& params) : p_(params) {
     if (!std::isfinite(d)) throw Error("camera: distortion coefficient not finite");
     if (d != 0.0) has_distortion_ = true;
   }
+  // The undistorted border: 16 samples per side. Where undistortion diverges
+  // (a distortion that folds the image within its own border) the camera is
+  // refused rather than tracked with keypoints thrown anywhere.
+  min_u_ = min_v_ = 0.0;
+  max_u_ = p_.width;
+  max_v_ = p_.height;
+  if (has_distortion_) {
+    min_u_ = min_v_ = std::numeric_limits<double>::infinity();
+    max_u_ = max_v_ = -std::numeric_limits<double>::infinity();
+    constexpr int kSamples = 16;
+    const double w = p_.width - 1.0, h = p_.height - 1.0;
+    for (int i = 0; i <= kSamples; ++i) {
+      const double s = static_cast<double>(i) / kSamples;
+      for (const Eigen::Vector2d& uv : {Eigen::Vector2d(s * w, 0), Eigen::Vector2d(s * w, h),
+                                        Eigen::Vector2d(0, s * h), Eigen::Vector2d(w, s * h)}) {
+        const Eigen::Vector2d u = undistortPoint(uv);
+        if (!u.allFinite() || (distort(unproject(uv).head<2>()) -
+                               Eigen::Vector2d((uv.x() - p_.cx) / p_.fx, (uv.y() - p_.cy) / p_.fy))
+                                      .norm() > 1e-6) {
+          throw Error("camera: the distortion cannot be inverted at pixel (" +
+                      std::to_string(uv.x()) + ", " + std::to_string(uv.y()) +
+                      "); it folds the image");
+        }
+        min_u_ = std::min(min_u_, u.x());
+        min_v_ = std::min(min_v_, u.y());
+        max_u_ = std::max(max_u_, u.x() + 1.0);
+        max_v_ = std::max(max_v_, u.y() + 1.0);
+      }
+    }
+    const double side = 4.0 * std::max(p_.width, p_.height);
+    if (min_u_ < -side || min_v_ < -side || max_u_ > side || max_v_ > side) {
+      throw Error(
+          "camera: the undistorted image spans more than 4 times the image size; the "
+          "distortion coefficients are not a lens's");
+    }
+  }
+}
+
+std::string PinholeCamera::difference(const PinholeCamera& other, double relative_tolerance) const {
+  const CameraParams& a = p_;
+  const CameraParams& b = other.p_;
+  std::ostringstream os;
+  if (a.width != b.width || a.height != b.height) {
+    os << "image size " << b.width << "x" << b.height << " is not " << a.width << "x" << a.height;
+    return os.str();
+  }
+  const auto off = [relative_tolerance](double x, double y) {
+    return std::abs(x - y) > relative_tolerance * std::abs(y);
+  };
+  if (off(b.fx, a.fx) || off(b.fy, a.fy) || off(b.cx, a.cx) || off(b.cy, a.cy)) {
+    os << "intrinsics fx " << b.fx << " fy " << b.fy << " cx " << b.cx << " cy " << b.cy
+       << " are not fx " << a.fx << " fy " << a.fy << " cx " << a.cx << " cy " << a.cy;
+    return os.str();
+  }
+  for (size_t i = 0; i < a.dist.size(); ++i) {
+    if (std::abs(a.dist[i] - b.dist[i]) > std::max(relative_tolerance, 1e-9)) {
+      os << "distortion coefficient " << i << " (" << b.dist[i] << ") is not " << a.dist[i];
+      return os.str();
+    }
+  }
+  return {};
 }
 
 Eigen::Matrix3d PinholeCamera::K() const {

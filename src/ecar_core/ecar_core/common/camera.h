@@ -6,6 +6,7 @@
 #pragma once
 
 #include <array>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -13,6 +14,15 @@
 #include <Eigen/Core>
 
 namespace ecar {
+
+/// Pinhole intrinsics of the undistorted image (what projections in the SLAM use).
+struct Intrinsics {
+  double fx = 0, fy = 0, cx = 0, cy = 0;
+};
+
+/// Largest image side a camera may have (px): bounds what a hostile or broken
+/// camera description can make the server allocate.
+constexpr int kMaxCameraSide = 8192;
 
 struct CameraParams {
   int width = 640;
@@ -28,7 +38,8 @@ class PinholeCamera {
  public:
   PinholeCamera() = default;
   /// Throws ecar::Error when a parameter is invalid (non-positive size or focal
-  /// length, non-finite value).
+  /// length, a side above kMaxCameraSide, non-finite value, a distortion that
+  /// folds the image).
   explicit PinholeCamera(const CameraParams& params);
 
   const CameraParams& params() const { return p_; }
@@ -36,6 +47,19 @@ class PinholeCamera {
   int height() const { return p_.height; }
   bool hasDistortion() const { return has_distortion_; }
   Eigen::Matrix3d K() const;
+  Intrinsics intrinsics() const { return {p_.fx, p_.fy, p_.cx, p_.cy}; }
+  /// Same size, intrinsics and distortion within `relative_tolerance` (the
+  /// distortion coefficients absolutely, at least 1e-9). Empty when they
+  /// match; otherwise what differs, for a message.
+  std::string difference(const PinholeCamera& other, double relative_tolerance = 1e-9) const;
+
+  /// Where the image's pixels lie once undistorted: the box around the
+  /// undistorted border (with distortion, corners move out or in). Keypoint
+  /// grids and projection checks use it, not the raw image size.
+  double minU() const { return min_u_; }
+  double minV() const { return min_v_; }
+  double maxU() const { return max_u_; }
+  double maxV() const { return max_v_; }
 
   /// Applies distortion to normalised coordinates.
   Eigen::Vector2d distort(const Eigen::Vector2d& xn) const;
@@ -62,6 +86,10 @@ class PinholeCamera {
  private:
   CameraParams p_;
   bool has_distortion_ = false;
+  double min_u_ = 0, min_v_ = 0, max_u_ = 0, max_v_ = 0;
 };
+
+/// Cameras are shared by every keyframe a device makes (and never change).
+using CameraPtr = std::shared_ptr<const PinholeCamera>;
 
 }  // namespace ecar

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <set>
+#include <unordered_map>
 
 #include "ecar_core/common/error.h"
 
@@ -10,25 +11,26 @@ namespace ecar {
 namespace {
 
 /// Layout of the "slam" section's contents (independent of the container's).
-constexpr uint32_t kSlamSectionVersion = 1;
+/// Version 1 had one camera for the whole map; it is still read.
+constexpr uint32_t kSlamSectionVersion = 2;
+constexpr uint32_t kMaxCameras = 1024;
+constexpr size_t kCameraBytes = 4 + 4 + 9 * 8;
 constexpr size_t kDescriptorBytes = 32;
 constexpr size_t kKeypointBytes = 6 * 4;  // x, y, size, angle, response, octave
 constexpr size_t kObservationBytes = 8;   // keyframe id, keypoint index
-
-bool nearlyEqual(double a, double b) {
-  return std::fabs(a - b) <= 1e-9 * std::max(1.0, std::max(std::fabs(a), std::fabs(b)));
-}
 
 }  // namespace
 
 // ---------------------------------------------------------------- the SLAM map
 //
 // Layout of the "slam" section (version kSlamSectionVersion):
-//   u32 version; camera: i32 width, i32 height, f64 fx, fy, cx, cy, f64 x5
-//   distortion; u32 pyramid levels, f32 scale per level; u32 epoch, u32 next
-//   keyframe id, u32 next point id;
+//   u32 version; u32 camera count (the first is the SLAM system's default),
+//   each camera: i32 width, i32 height, f64 fx, fy, cx, cy, f64 x5
+//   distortion; u32 pyramid levels, f32 scale per level;
+//   u32 epoch, u32 next keyframe id, u32 next point id;
 //   u32 keyframe count, each: u32 id, u32 device, u32 frame index,
-//     f64 timestamp, se3 T_c_w, u8 flags (1 bad, 2 gravity, 4 odometry),
+//     f64 timestamp, se3 T_c_w, u32 camera index, u8 flags (1 bad, 2 gravity,
+//     4 odometry),
 //     [vec3 gravity_c], [se3 T_o_c], u32 N, N x (f32 x, y, size, angle,
 //     response, i32 octave), u8 descriptors present, [N x 32 bytes],
 //     N x u32 point id (0: none);
@@ -37,14 +39,34 @@ bool nearlyEqual(double a, double b) {
 //     u32 version, u8 flags (1 bad, 2 descriptor), [32 bytes descriptor],
 //     u32 M, M x (u32 keyframe id, i32 keypoint index).
 
-std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& camera) {
+std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& default_camera) {
   ByteWriter out;
   out.u32(kSlamSectionVersion);
-  const CameraParams& c = camera.params();
-  out.i32(c.width);
-  out.i32(c.height);
-  for (const double v : {c.fx, c.fy, c.cx, c.cy}) out.f64(v);
-  for (const double v : c.dist) out.f64(v);
+  const std::vector<KeyFrameId> keyframes = map.keyframeIds();
+  // The default camera first, then the keyframes' distinct cameras (keyframes
+  // of one device share one object).
+  std::vector<CameraPtr> cameras = {std::make_shared<const PinholeCamera>(default_camera)};
+  std::unordered_map<const PinholeCamera*, uint32_t> camera_index;
+  for (const KeyFrameId id : keyframes) {
+    const CameraPtr& camera = map.keyframe(id)->camera;
+    if (!camera)
+      throw Error("encodeSlamMap: keyframe " + std::to_string(id.value) + " has no camera");
+    if (camera_index.count(camera.get())) continue;
+    uint32_t index = static_cast<uint32_t>(cameras.size());
+    for (uint32_t i = 0; i < cameras.size(); ++i) {
+      if (cameras[i]->difference(*camera).empty()) index = i;
+    }
+    camera_index[camera.get()] = index;
+    if (index == cameras.size()) cameras.push_back(camera);
+  }
+  out.u32(static_cast<uint32_t>(cameras.size()));
+  for (const CameraPtr& camera : cameras) {
+    const CameraParams& c = camera->params();
+    out.i32(c.width);
+    out.i32(c.height);
+    for (const double v : {c.fx, c.fy, c.cx, c.cy}) out.f64(v);
+    for (const double v : c.dist) out.f64(v);
+  }
   const ScaleInfo& scale = map.scale();
   out.u32(static_cast<uint32_t>(scale.levels()));
   for (const float s : scale.scale) out.f32(s);
@@ -52,7 +74,6 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& camera) 
   out.u32(map.nextKeyFrameId().value);
   out.u32(map.nextPointId().value);
 
-  const std::vector<KeyFrameId> keyframes = map.keyframeIds();
   out.u32(static_cast<uint32_t>(keyframes.size()));
   for (const KeyFrameId id : keyframes) {
     const KeyFrame& kf = *map.keyframe(id);
@@ -62,6 +83,7 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& camera) 
     out.u32(kf.frame_index);
     out.f64(kf.timestamp);
     out.se3(kf.T_c_w);
+    out.u32(camera_index.at(kf.camera.get()));
     out.u8(static_cast<uint8_t>((kf.bad ? 1 : 0) | (f.gravity_c ? 2 : 0) | (f.T_o_c ? 4 : 0)));
     if (f.gravity_c) out.vec3(*f.gravity_c);
     if (f.T_o_c) out.se3(*f.T_o_c);
@@ -122,30 +144,52 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& camera) 
 
 namespace {
 
-// Reads the camera and pyramid the map was made with and checks them against
-// this system's: keypoints, descriptors and distances mean nothing with others.
-void checkCameraAndScale(ByteReader* in, const PinholeCamera& camera, const ScaleInfo& scale) {
-  const CameraParams& c = camera.params();
-  const auto same_int = [in](const char* field, int saved, int ours) {
-    if (saved != ours) {
-      in->fail(field, "the map was made with " + std::to_string(saved) + ", this camera has " +
-                          std::to_string(ours));
-    }
-  };
-  const auto same = [in](const char* field, double saved, double ours) {
-    if (!nearlyEqual(saved, ours)) {
-      in->fail(field, "the map was made with " + std::to_string(saved) + ", this camera has " +
-                          std::to_string(ours));
-    }
-  };
-  same_int("camera.width", in->i32("camera.width"), c.width);
-  same_int("camera.height", in->i32("camera.height"), c.height);
-  same("camera.fx", in->f64("camera.fx"), c.fx);
-  same("camera.fy", in->f64("camera.fy"), c.fy);
-  same("camera.cx", in->f64("camera.cx"), c.cx);
-  same("camera.cy", in->f64("camera.cy"), c.cy);
-  for (size_t i = 0; i < c.dist.size(); ++i)
-    same("camera.distortion", in->f64("camera.distortion"), c.dist[i]);
+uint32_t readVersion(ByteReader* in) {
+  const uint32_t version = in->u32("slam version");
+  if (version != 1 && version != kSlamSectionVersion) {
+    in->fail("slam version", "version " + std::to_string(version) +
+                                 ", this build reads versions 1 to " +
+                                 std::to_string(kSlamSectionVersion));
+  }
+  return version;
+}
+
+CameraPtr readCamera(ByteReader* in) {
+  CameraParams c;
+  c.width = in->i32("camera.width");
+  c.height = in->i32("camera.height");
+  c.fx = in->f64("camera.fx");
+  c.fy = in->f64("camera.fy");
+  c.cx = in->f64("camera.cx");
+  c.cy = in->f64("camera.cy");
+  for (double& d : c.dist) d = in->f64("camera.distortion");
+  try {
+    return std::make_shared<const PinholeCamera>(c);
+  } catch (const Error& e) {
+    in->fail("camera", e.what());
+  }
+}
+
+// The cameras of the map's keyframes (version 1: the one camera).
+std::vector<CameraPtr> readCameras(ByteReader* in, uint32_t version) {
+  if (version == 1) return {readCamera(in)};
+  const uint32_t n = in->count("camera count", kCameraBytes);
+  if (n == 0 || n > kMaxCameras) {
+    in->fail("camera count",
+             std::to_string(n) + " cameras (1 to " + std::to_string(kMaxCameras) + " expected)");
+  }
+  std::vector<CameraPtr> cameras;
+  for (uint32_t i = 0; i < n; ++i) {
+    in->setScope("camera " + std::to_string(i));
+    cameras.push_back(readCamera(in));
+  }
+  in->setScope("");
+  return cameras;
+}
+
+// Reads the pyramid the map was made with and checks it against this
+// system's: keypoint octaves and distance ranges mean nothing with another.
+void checkScale(ByteReader* in, const ScaleInfo& scale) {
   const uint32_t levels = in->u32("pyramid.levels");
   if (levels != static_cast<uint32_t>(scale.levels())) {
     in->fail("pyramid.levels", "the map was made with " + std::to_string(levels) +
@@ -163,20 +207,17 @@ void checkCameraAndScale(ByteReader* in, const PinholeCamera& camera, const Scal
 
 }  // namespace
 
-std::unique_ptr<Map> decodeSlamMap(ByteReader in, const PinholeCamera& camera,
-                                   const ScaleInfo& scale) {
-  const uint32_t version = in.u32("slam version");
-  if (version != kSlamSectionVersion) {
-    in.fail("slam version", "version " + std::to_string(version) + ", this build reads version " +
-                                std::to_string(kSlamSectionVersion));
-  }
-  checkCameraAndScale(&in, camera, scale);
+std::unique_ptr<Map> decodeSlamMap(ByteReader in, const ScaleInfo& scale) {
+  const uint32_t version = readVersion(&in);
+  const std::vector<CameraPtr> cameras = readCameras(&in, version);
+  checkScale(&in, scale);
   const uint32_t epoch = in.u32("epoch");
   const KeyFrameId next_keyframe(in.u32("next keyframe id"));
   const MapPointId next_point(in.u32("next point id"));
 
   auto map = std::make_unique<Map>(scale);
-  const uint32_t num_keyframes = in.count("keyframe count", 4 + 4 + 4 + 8 + 96 + 1 + 4 + 1);
+  const uint32_t num_keyframes =
+      in.count("keyframe count", 4 + 4 + 4 + 8 + 96 + (version == 1 ? 0 : 4) + 1 + 4 + 1);
   for (uint32_t k = 0; k < num_keyframes; ++k) {
     in.setScope("keyframe #" + std::to_string(k));
     KeyFrame kf;
@@ -191,6 +232,12 @@ std::unique_ptr<Map> decodeSlamMap(ByteReader in, const PinholeCamera& camera,
     kf.frame_index = in.u32("frame index");
     kf.timestamp = in.f64("timestamp");
     kf.T_c_w = in.se3("T_c_w");
+    const uint32_t camera = version == 1 ? 0 : in.u32("camera index");
+    if (camera >= cameras.size()) {
+      in.fail("camera index", std::to_string(camera) + " is not below the camera count " +
+                                  std::to_string(cameras.size()));
+    }
+    kf.camera = cameras[camera];
     Frame& f = kf.features;
     f.frame_index = kf.frame_index;
     f.timestamp = kf.timestamp;
@@ -231,7 +278,7 @@ std::unique_ptr<Map> decodeSlamMap(ByteReader in, const PinholeCamera& camera,
     }
     kf.points.resize(n);
     for (uint32_t i = 0; i < n; ++i) kf.points[i] = MapPointId(in.u32("point id"));
-    f.finalize(camera);
+    f.finalize(*kf.camera);
     map->insertKeyFrame(std::move(kf));
   }
 
@@ -295,24 +342,8 @@ std::unique_ptr<Map> decodeSlamMap(ByteReader in, const PinholeCamera& camera,
 }
 
 PinholeCamera decodeSlamCamera(ByteReader in) {
-  const uint32_t version = in.u32("slam version");
-  if (version != kSlamSectionVersion) {
-    in.fail("slam version", "version " + std::to_string(version) + ", this build reads version " +
-                                std::to_string(kSlamSectionVersion));
-  }
-  CameraParams c;
-  c.width = in.i32("camera.width");
-  c.height = in.i32("camera.height");
-  c.fx = in.f64("camera.fx");
-  c.fy = in.f64("camera.fy");
-  c.cx = in.f64("camera.cx");
-  c.cy = in.f64("camera.cy");
-  for (double& d : c.dist) d = in.f64("camera.distortion");
-  try {
-    return PinholeCamera(c);
-  } catch (const Error& e) {
-    in.fail("camera", e.what());
-  }
+  const uint32_t version = readVersion(&in);
+  return *readCameras(&in, version).front();
 }
 
 }  // namespace ecar

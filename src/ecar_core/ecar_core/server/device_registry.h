@@ -6,8 +6,8 @@
 //   registry.touch("device_0", now);                    // on every upload
 //   for (const auto& name : registry.removeSilent(now)) { ... }
 //
-// The camera check and the creation of the SLAM map with the first camera are
-// the global graph's (GlobalGraph::connect). Thread-safe: one mutex.
+// Cameras (each device's own, given to the SLAM) and the creation of the SLAM
+// system are the global graph's (GlobalGraph::connect). Thread-safe: one mutex.
 #pragma once
 
 #include <cstddef>

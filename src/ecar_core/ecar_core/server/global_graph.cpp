@@ -40,7 +40,9 @@ void GlobalGraphConfig::validate() const {
     fail("vo", e.what());
   }
   if (!(vo_map_margin >= 0.0)) fail("vo.map_margin", "must be >= 0 m");
-  if (!(camera_tolerance >= 0.0)) fail("camera_tolerance", "must be >= 0");
+  if (!(camera_tolerance >= 0.0 && camera_tolerance < 1.0)) {
+    fail("camera_tolerance", "must be in [0, 1)");
+  }
   if (!(devices.device_timeout > 0.0)) fail("device_timeout", "must be > 0 s");
 }
 
@@ -52,40 +54,9 @@ GlobalGraph::GlobalGraph(const GlobalGraphConfig& config)
   grid_.attachObjects(vos_->allObjects(), vos_->config().cell_size, vos_->config().attach_margin);
 }
 
-std::string GlobalGraph::cameraMismatch(const PinholeCamera& camera) const {
-  const CameraParams& a = slam_->camera().params();
-  const CameraParams& b = camera.params();
-  std::ostringstream os;
-  if (a.width != b.width || a.height != b.height) {
-    os << "image size " << b.width << "x" << b.height << " differs from the SLAM camera's "
-       << a.width << "x" << a.height;
-    return os.str();
-  }
-  const double tol = config_.camera_tolerance;
-  const auto off = [tol](double x, double y) { return std::abs(x - y) > tol * std::abs(y); };
-  if (off(b.fx, a.fx) || off(b.fy, a.fy) || off(b.cx, a.cx) || off(b.cy, a.cy)) {
-    os << "intrinsics fx " << b.fx << " fy " << b.fy << " cx " << b.cx << " cy " << b.cy
-       << " differ from the SLAM camera's (fx " << a.fx << " fy " << a.fy << " cx " << a.cx
-       << " cy " << a.cy << ")";
-    return os.str();
-  }
-  for (size_t i = 0; i < a.dist.size(); ++i) {
-    if (std::abs(a.dist[i] - b.dist[i]) > std::max(tol, 1e-9)) {
-      os << "distortion coefficient " << i << " (" << b.dist[i] << ") differs from the SLAM "
-         << "camera's (" << a.dist[i] << ")";
-      return os.str();
-    }
-  }
-  return {};
-}
-
 std::shared_ptr<SlamSystem> GlobalGraph::slamLocked(const PinholeCamera& camera, bool* created) {
   *created = false;
-  if (slam_) {
-    const std::string why = cameraMismatch(camera);
-    if (!why.empty()) throw Error(why);
-    return slam_;
-  }
+  if (slam_) return slam_;
   SlamConfig c = config_.slam;
   c.synchronous_mapping = false;
   slam_ = std::make_shared<SlamSystem>(camera, c);
@@ -100,20 +71,16 @@ DeviceConnectResult GlobalGraph::connect(const std::string& name, const PinholeC
   result.message = DeviceRegistry::refusal(name, sync_mode);
   if (!result.message.empty()) return result;
   std::lock_guard<std::mutex> events(events_mutex_);
-  std::shared_ptr<SlamSystem> created;
+  std::shared_ptr<SlamSystem> created, slam;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     bool is_new = false;
-    try {
-      const auto slam = slamLocked(camera, &is_new);
-      if (is_new) created = slam;
-    } catch (const Error& e) {
-      result.message =
-          std::string("camera refused: ") + e.what() + " (all devices share one SLAM camera)";
-      return result;
-    }
+    slam = slamLocked(camera, &is_new);
+    if (is_new) created = slam;
   }
   result = devices_.connect(name, sync_mode, keyframe_queue, now);
+  // Each device tracks with its own camera; its keyframes carry it.
+  if (result.accepted) slam->setCamera(result.device.id, camera, config_.camera_tolerance);
   if (created) {
     for (GraphListener* l : listeners_) l->onSlamCreated(created);
   }
@@ -153,16 +120,19 @@ std::shared_ptr<SlamSystem> GlobalGraph::slamFor(const PinholeCamera& camera) {
   bool created = false;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    try {
-      slam = slamLocked(camera, &created);
-    } catch (const Error& e) {
-      throw Error(std::string("the map's camera differs from the server's: ") + e.what());
-    }
+    slam = slamLocked(camera, &created);
   }
   if (created) {
     for (GraphListener* l : listeners_) l->onSlamCreated(slam);
   }
   return slam;
+}
+
+CameraPtr GlobalGraph::camera(const std::string& device) const {
+  const std::shared_ptr<SlamSystem> slam = this->slam();
+  if (!slam) return nullptr;
+  const std::optional<DeviceInfo> info = devices_.device(device);
+  return slam->camera(info ? info->id : DeviceId());
 }
 
 uint32_t GlobalGraph::epoch() const {
@@ -236,7 +206,7 @@ MapCounts GlobalGraph::load(const std::string& path) {
   std::shared_ptr<SlamSystem> slam = this->slam();
   const PinholeCamera camera = slam ? slam->camera() : decodeSlamCamera(file.reader(kSlamSection));
   const ScaleInfo scale = slam ? slam->map().scale() : ScaleInfo::fromConfig(config_.slam.orb);
-  std::unique_ptr<Map> map = decodeSlamMap(file.reader(kSlamSection), camera, scale);
+  std::unique_ptr<Map> map = decodeSlamMap(file.reader(kSlamSection), scale);
   const StructureState state = readStructureSections(file);
   MapCounts counts;
   counts.keyframes = static_cast<uint32_t>(map->numKeyFrames());

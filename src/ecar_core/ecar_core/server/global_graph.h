@@ -7,7 +7,7 @@
 //
 //   GlobalGraph graph(config);                        // opens the VO database
 //   DeviceConnectResult r = graph.connect("device_0", camera, "", 10, now);
-//   std::shared_ptr<SlamSystem> slam = graph.slam();  // created by the first camera
+//   std::shared_ptr<SlamSystem> slam = graph.slam();  // created by the first device
 //   MapCounts saved = graph.save("/tmp/corridor.ecarmap");
 //
 // What it holds, and the lock contract:
@@ -56,8 +56,10 @@ struct GlobalGraphConfig {
   /// m: the VO map bounds are the keyframe centres' bounding box grown by this
   /// (within vo.map_min / vo.map_max).
   double vo_map_margin = 10.0;
-  /// A device's intrinsics may differ from the SLAM camera's by this fraction
-  /// (fx, fy, cx, cy) and its distortion coefficients by this much.
+  /// Devices' cameras whose intrinsics differ by at most this fraction (fx, fy,
+  /// cx, cy) and distortion coefficients by at most this much count as one
+  /// camera (their keyframes share it; the map file stores it once). Any
+  /// camera may connect: each device tracks with its own.
   double camera_tolerance = 0.005;
   DeviceRegistryConfig devices;
 
@@ -98,9 +100,9 @@ class GlobalGraph {
   const GlobalGraphConfig& config() const { return config_; }
 
   // ---- devices
-  /// Registers (or re-registers) a device. Refused: an invalid name or sync
-  /// mode (DeviceRegistry::refusal), a camera unlike the SLAM's. The first
-  /// accepted device's camera creates the SLAM system.
+  /// Registers (or re-registers) a device with its own camera (its tracker and
+  /// keyframes use it). Refused: an invalid name or sync mode
+  /// (DeviceRegistry::refusal). The first device creates the SLAM system.
   DeviceConnectResult connect(const std::string& name, const PinholeCamera& camera,
                               const std::string& sync_mode, uint32_t keyframe_queue, double now);
   bool disconnect(const std::string& name);
@@ -113,9 +115,12 @@ class GlobalGraph {
   // ---- the SLAM map
   /// Null until the first device connected (or a map was loaded).
   std::shared_ptr<SlamSystem> slam() const;
-  /// The SLAM system, created with `camera` when there is none yet. Throws
-  /// ecar::Error when it exists with another camera.
+  /// The SLAM system, created with `camera` as its default camera when there
+  /// is none yet.
   std::shared_ptr<SlamSystem> slamFor(const PinholeCamera& camera);
+  /// The camera a device's uploads are tracked with (the SLAM's default camera
+  /// for a name never connected); null before a SLAM system exists.
+  CameraPtr camera(const std::string& device) const;
   /// The map epoch: first_epoch until a map is loaded, then past both maps'.
   uint32_t epoch() const;
 
@@ -155,9 +160,10 @@ class GlobalGraph {
   /// transaction), the SLAM map is installed (running alignments finish first,
   /// new ones wait; every tracker relocalises; the epoch moves on), planes and
   /// grid links are swapped and the objects re-attached to the grid. Before any
-  /// device connected, the SLAM system is created with the map's camera;
-  /// afterwards the map must have the devices' camera. Throws ecar::Error
-  /// naming the path, the section and the field.
+  /// device connected, the SLAM system is created with the map's first camera
+  /// as its default. Keyframes keep their saved cameras; connected devices
+  /// keep theirs. Throws ecar::Error naming the path, the section and the
+  /// field.
   MapCounts load(const std::string& path);
 
   /// Adds a listener and replays the current state to it (onSlamCreated,
@@ -166,10 +172,8 @@ class GlobalGraph {
   void removeListener(GraphListener* listener);
 
  private:
-  /// Why `camera` cannot join the SLAM's (empty when it can). mutex_ held.
-  std::string cameraMismatch(const PinholeCamera& camera) const;
   /// The SLAM system, created with `camera` when missing (sets *created).
-  /// mutex_ held; throws on a camera mismatch.
+  /// mutex_ held.
   std::shared_ptr<SlamSystem> slamLocked(const PinholeCamera& camera, bool* created);
 
   const GlobalGraphConfig config_;

@@ -24,12 +24,14 @@ GridConnection::GridConnection(GlobalGraph* graph, const GridConnectionConfig& c
   grid_planes_ = std::make_shared<const GridPlanes>();
 }
 
-std::shared_ptr<const GridCaster> GridConnection::caster() {
-  const std::shared_ptr<SlamSystem> slam = graph_->slam();
-  if (!slam) return nullptr;
+std::shared_ptr<const GridCaster> GridConnection::caster(const CameraPtr& camera) {
+  if (!camera) return nullptr;
   std::lock_guard<std::mutex> lock(mutex_);
-  if (!caster_) caster_ = std::make_shared<const GridCaster>(graph_->config().grid, slam->camera());
-  return caster_;
+  for (const auto& [c, grid] : casters_) {
+    if (c == camera) return grid;
+  }
+  casters_.emplace_back(camera, std::make_shared<const GridCaster>(graph_->config().grid, *camera));
+  return casters_.back().second;
 }
 
 std::shared_ptr<const GridPlanes> GridConnection::gridPlanes() {
@@ -52,7 +54,12 @@ std::shared_ptr<const GridPlanes> GridConnection::gridPlanes() {
 
 size_t GridConnection::linkKeyFrame(const KeyFramePlanes& keyframe) {
   if (!keyframe.done()) return 0;
-  const std::shared_ptr<const GridCaster> grid = caster();
+  const std::shared_ptr<SlamSystem> slam = graph_->slam();
+  if (!slam) return 0;
+  // The keyframe's own camera; its device's when it was culled meanwhile.
+  CameraPtr camera = keyframeCamera(slam->map(), keyframe.keyframe);
+  if (!camera) camera = slam->camera(keyframe.device);
+  const std::shared_ptr<const GridCaster> grid = caster(camera);
   if (!grid) return 0;
   auto structure = graph_->structureLock();
   if (graph_->epoch() != keyframe.map_epoch) return 0;  // from a replaced map
@@ -98,12 +105,12 @@ VoOutcome GridConnection::apply(const VoRequest& r) {
   return outcome;
 }
 
-VisibleStructure GridConnection::visible(const TrackResult& frame) {
+VisibleStructure GridConnection::visible(const TrackResult& frame, const std::string& device) {
   const auto start = std::chrono::steady_clock::now();
   VisibleStructure out;
   out.objects_computed = config_.objects;
   if (frame.state != TrackingState::kOk) return out;
-  const std::shared_ptr<const GridCaster> grid = caster();
+  const std::shared_ptr<const GridCaster> grid = caster(graph_->camera(device));
   if (!grid) return out;
   auto structure = graph_->structureLock();
   if (graph_->epoch() != frame.map_epoch) {

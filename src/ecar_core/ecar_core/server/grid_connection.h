@@ -6,8 +6,8 @@
 //   VoOutcome r = grid.apply(request);                 // per interaction
 //   VisibleStructure v = grid.visible(track_result);   // per aligned upload
 //
-// - Keyframe-cell links: the cells the sampled rays of a keyframe's camera hit
-//   on the current planes (GridCaster, every `window` px).
+// - Keyframe-cell links: the cells the sampled rays of a keyframe's own camera
+//   hit on the current planes (GridCaster, every `window` px).
 // - Object-cell links: a VO change is checked and stored by the VO store
 //   (rules, SQLite), then the object is attached to the cells its geometry
 //   crosses (attachmentCells), re-attached when it moves, detached when deleted.
@@ -73,14 +73,15 @@ class GridConnection {
   /// to its cells. REGISTER: the object's owner is the request's device.
   VoOutcome apply(const VoRequest& request);
 
-  /// What the aligned upload `frame` sees (nothing unless it was tracked).
-  VisibleStructure visible(const TrackResult& frame);
+  /// What the aligned upload `frame` of `device` sees through the device's
+  /// camera (nothing unless it was tracked).
+  VisibleStructure visible(const TrackResult& frame, const std::string& device);
 
   const GridConnectionConfig& config() const { return config_; }
 
  private:
-  /// The caster of the SLAM camera (null before a SLAM system exists).
-  std::shared_ptr<const GridCaster> caster();
+  /// The caster of a camera (built once per camera; null for a null camera).
+  std::shared_ptr<const GridCaster> caster(const CameraPtr& camera);
   /// The current planes prepared for casting (rebuilt when they changed).
   std::shared_ptr<const GridPlanes> gridPlanes();
 
@@ -88,7 +89,8 @@ class GridConnection {
   const GridConnectionConfig config_;
   std::mutex apply_mutex_;  // serialises apply()
   std::mutex mutex_;        // guards the members below
-  std::shared_ptr<const GridCaster> caster_;
+  /// One caster per camera (a few cameras: a short list).
+  std::vector<std::pair<CameraPtr, std::shared_ptr<const GridCaster>>> casters_;
   std::shared_ptr<const GridPlanes> grid_planes_;
   uint64_t grid_planes_revision_ = 0;
   uint64_t grid_planes_generation_ = 0;

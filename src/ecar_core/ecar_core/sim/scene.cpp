@@ -341,9 +341,20 @@ std::vector<TouchScriptItem> readTouches(const Reader& r, const PinholeCamera& c
   return items;
 }
 
-DeviceSpec readDevice(const Reader& r, size_t index, const PinholeCamera& camera) {
-  r.allowOnly({"name", "seed", "trajectory", "odometry", "touches"});
+DeviceSpec readDevice(const Reader& r, size_t index, const PinholeCamera& scene_camera) {
+  r.allowOnly({"name", "seed", "camera", "trajectory", "odometry", "touches"});
   DeviceSpec d;
+  // A device may have its own camera (another phone); touches are pixels of it.
+  std::optional<PinholeCamera> own;
+  if (r.has("camera")) {
+    d.camera = readCamera(r.child("camera"));
+    try {
+      own.emplace(*d.camera);
+    } catch (const Error& e) {
+      r.fail(std::string("camera: ") + e.what());
+    }
+  }
+  const PinholeCamera& camera = own ? *own : scene_camera;
   d.name = r.get<std::string>("name");
   if (d.name.empty()) r.fail("key 'name' must not be empty");
   for (char c : d.name) {
@@ -365,6 +376,10 @@ DeviceSpec readDevice(const Reader& r, size_t index, const PinholeCamera& camera
 }
 
 }  // namespace
+
+const CameraParams& Scene::cameraOf(const DeviceSpec& device) const {
+  return device.camera ? *device.camera : camera;
+}
 
 bool Scene::isFree(const Eigen::Vector3d& p, double margin) const {
   bool inside = false;
@@ -451,7 +466,7 @@ namespace ecar {
 
 std::vector<TouchEvent> scriptTouches(const Scene& scene, const DeviceSpec& device,
                                       const Trajectory& frames, size_t total_frames) {
-  const PinholeCamera camera(scene.camera);
+  const PinholeCamera camera(scene.cameraOf(device));
   const std::string who = scene.path + ": device '" + device.name + "': touches[";
   std::vector<TouchEvent> events;
   for (size_t k = 0; k < device.touches.size(); ++k) {

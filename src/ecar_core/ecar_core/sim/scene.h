@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -100,6 +101,8 @@ struct TouchScriptItem {
 
 struct DeviceSpec {
   std::string name;
+  /// The device's own camera (key `camera:`, as the scene's); none: the scene's.
+  std::optional<CameraParams> camera;
   TrajectorySpec trajectory;
   OdometryNoise odometry;
   uint32_t seed = 0;  ///< hand-jitter and odometry-noise seed
@@ -122,6 +125,8 @@ struct Scene {
   /// at least `margin` from any surface.
   bool isFree(const Eigen::Vector3d& p, double margin = 0.0) const;
   const DeviceSpec& device(const std::string& name) const;  ///< throws when unknown
+  /// The camera a device sees through: its own, or the scene's.
+  const CameraParams& cameraOf(const DeviceSpec& device) const;
 };
 
 /// Loads and validates a scene file. Throws ecar::Error naming the file and the
@@ -130,7 +135,8 @@ Scene loadScene(const std::string& path);
 
 /// The touch events of `device`'s script (scene.devices), one per scripted
 /// frame, in frame order. `frames[i]` is frame i's stamp and ground-truth pose
-/// T_w_c; world points are projected with it through PinholeCamera(scene.camera).
+/// T_w_c; world points are projected with it through the device's camera
+/// (Scene::cameraOf).
 /// `total_frames` is the length of the device's whole trajectory, of which
 /// `frames` may be a prefix (make_dataset --frames): an item at or past
 /// total_frames is an error; events past the end of `frames` are dropped, and a

@@ -6,14 +6,17 @@
 namespace ecar {
 
 void FeatureGrid::build(const std::vector<Eigen::Vector2d>& points,
-                        const std::vector<cv::KeyPoint>& kps, int width, int height) {
-  cols_ = std::max(1, (width + kCell - 1) / kCell);
-  rows_ = std::max(1, (height + kCell - 1) / kCell);
+                        const std::vector<cv::KeyPoint>& kps, double min_u, double min_v,
+                        double max_u, double max_v) {
+  origin_u_ = std::floor(min_u);
+  origin_v_ = std::floor(min_v);
+  cols_ = std::max(1, static_cast<int>(std::ceil((max_u - origin_u_) / kCell)));
+  rows_ = std::max(1, static_cast<int>(std::ceil((max_v - origin_v_) / kCell)));
   if (cells_.size() != static_cast<size_t>(cols_ * rows_)) cells_.assign(cols_ * rows_, {});
   for (auto& c : cells_) c.clear();
   for (size_t i = 0; i < points.size(); ++i) {
-    const int cx = static_cast<int>(std::floor(points[i].x() / kCell));
-    const int cy = static_cast<int>(std::floor(points[i].y() / kCell));
+    const int cx = static_cast<int>(std::floor((points[i].x() - origin_u_) / kCell));
+    const int cy = static_cast<int>(std::floor((points[i].y() - origin_v_) / kCell));
     if (cx < 0 || cy < 0 || cx >= cols_ || cy >= rows_) continue;
     cells_[cy * cols_ + cx].push_back({static_cast<float>(points[i].x()),
                                        static_cast<float>(points[i].y()), static_cast<int>(i),
@@ -25,10 +28,11 @@ void FeatureGrid::query(double u, double v, double radius, int min_level, int ma
                         std::vector<int>* out) const {
   out->clear();
   if (cells_.empty() || !(std::fabs(u) < 1e6) || !(std::fabs(v) < 1e6) || !(radius < 1e4)) return;
-  const int x0 = std::max(0, static_cast<int>(std::floor((u - radius) / kCell)));
-  const int x1 = std::min(cols_ - 1, static_cast<int>(std::floor((u + radius) / kCell)));
-  const int y0 = std::max(0, static_cast<int>(std::floor((v - radius) / kCell)));
-  const int y1 = std::min(rows_ - 1, static_cast<int>(std::floor((v + radius) / kCell)));
+  const double gu = u - origin_u_, gv = v - origin_v_;
+  const int x0 = std::max(0, static_cast<int>(std::floor((gu - radius) / kCell)));
+  const int x1 = std::min(cols_ - 1, static_cast<int>(std::floor((gu + radius) / kCell)));
+  const int y0 = std::max(0, static_cast<int>(std::floor((gv - radius) / kCell)));
+  const int y1 = std::min(rows_ - 1, static_cast<int>(std::floor((gv + radius) / kCell)));
   const double r2 = radius * radius;
   for (int y = y0; y <= y1; ++y) {
     for (int x = x0; x <= x1; ++x) {
@@ -63,11 +67,11 @@ void Frame::finalize(const PinholeCamera& camera) {
   for (size_t i = 0; i < keypoints.size(); ++i) {
     undistorted[i] = camera.undistortPoint(Eigen::Vector2d(keypoints[i].pt.x, keypoints[i].pt.y));
   }
-  grid.build(undistorted, keypoints, camera.width(), camera.height());
-}
-
-Intrinsics intrinsicsOf(const PinholeCamera& camera) {
-  return {camera.params().fx, camera.params().fy, camera.params().cx, camera.params().cy};
+  min_u = camera.minU();
+  min_v = camera.minV();
+  max_u = camera.maxU();
+  max_v = camera.maxV();
+  grid.build(undistorted, keypoints, min_u, min_v, max_u, max_v);
 }
 
 }  // namespace ecar

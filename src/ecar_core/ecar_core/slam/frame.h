@@ -21,8 +21,10 @@ namespace ecar {
 class FeatureGrid {
  public:
   static constexpr int kCell = 16;  ///< px
+  /// Buckets `points` lying in [min_u, max_u) x [min_v, max_v) (the camera's
+  /// undistorted image box).
   void build(const std::vector<Eigen::Vector2d>& points, const std::vector<cv::KeyPoint>& kps,
-             int width, int height);
+             double min_u, double min_v, double max_u, double max_v);
   /// Indices of keypoints within `radius` px of (u, v) whose octave lies in
   /// [min_level, max_level] (-1: no bound). Appends to *out after clearing it.
   void query(double u, double v, double radius, int min_level, int max_level,
@@ -35,6 +37,7 @@ class FeatureGrid {
     int octave;
   };
   int cols_ = 0, rows_ = 0;
+  double origin_u_ = 0.0, origin_v_ = 0.0;
   std::vector<std::vector<Entry>> cells_;  ///< own copies: a Frame can be copied
 };
 
@@ -49,7 +52,10 @@ struct ScaleInfo {
 struct Frame {
   uint32_t frame_index = 0;
   double timestamp = 0.0;
-  int width = 0, height = 0;                 ///< image size (px)
+  int width = 0, height = 0;  ///< image size (px)
+  /// Box of the undistorted image (PinholeCamera::minU() ...): where a
+  /// projection (undistorted pixels) can meet a keypoint.
+  double min_u = 0, min_v = 0, max_u = 0, max_v = 0;
   std::vector<cv::KeyPoint> keypoints;       ///< distorted pixels, angle, octave
   std::vector<Eigen::Vector2d> undistorted;  ///< undistorted pixels
   cv::Mat descriptors;                       ///< N x 32, CV_8U
@@ -63,6 +69,6 @@ struct Frame {
 };
 
 /// Intrinsics of the undistorted pinhole of a camera.
-Intrinsics intrinsicsOf(const PinholeCamera& camera);
+inline Intrinsics intrinsicsOf(const PinholeCamera& camera) { return camera.intrinsics(); }
 
 }  // namespace ecar

@@ -10,14 +10,9 @@
 
 namespace ecar {
 
-LocalMapper::LocalMapper(Map* map, PlaceIndex* index, const PinholeCamera& camera,
-                         const SlamConfig& config, KeypointIndex* keypoints)
-    : map_(map),
-      index_(index),
-      keypoints_(keypoints),
-      camera_(camera),
-      K_(intrinsicsOf(camera)),
-      config_(config) {}
+LocalMapper::LocalMapper(Map* map, PlaceIndex* index, const SlamConfig& config,
+                         KeypointIndex* keypoints)
+    : map_(map), index_(index), keypoints_(keypoints), config_(config) {}
 
 LocalMapper::~LocalMapper() { stopThread(); }
 
@@ -163,6 +158,7 @@ int LocalMapper::triangulateNewPoints(KeyFrameId kf) {
   struct View {
     KeyFrameId id;
     SE3 T_c_w;
+    Intrinsics K;  ///< of the keyframe's own camera
     Frame features;
     std::vector<bool> used;
   };
@@ -173,7 +169,7 @@ int LocalMapper::triangulateNewPoints(KeyFrameId kf) {
     auto lock = map_->readLock();
     const KeyFrame* k = map_->keyframe(kf);
     if (!k) return 0;
-    cur = {kf, k->T_c_w, k->features, {}};
+    cur = {kf, k->T_c_w, k->K(), k->features, {}};
     for (const auto& id : k->points) cur.used.push_back(map_->point(id) != nullptr);
     std::vector<double> depths;
     for (const auto& id : k->points) {
@@ -188,7 +184,7 @@ int LocalMapper::triangulateNewPoints(KeyFrameId kf) {
       if (!n) continue;
       // Baseline large enough compared with the scene depth.
       if ((n->center() - k->center()).norm() < 0.01 * median_depth) continue;
-      View v{nid, n->T_c_w, n->features, {}};
+      View v{nid, n->T_c_w, n->K(), n->features, {}};
       for (const auto& id : n->points) v.used.push_back(map_->point(id) != nullptr);
       neighbours.push_back(std::move(v));
     }
@@ -203,13 +199,13 @@ int LocalMapper::triangulateNewPoints(KeyFrameId kf) {
   const SE3 T_w_c1 = cur.T_c_w.inverse();
   for (auto& n : neighbours) {
     const auto pairs = searchForTriangulation(cur.features, cur.T_c_w, cur.used, n.features,
-                                              n.T_c_w, n.used, K_, scale);
+                                              n.T_c_w, n.used, cur.K, n.K, scale);
     const SE3 T_w_c2 = n.T_c_w.inverse();
     for (const auto& [i1, i2] : pairs) {
       const Eigen::Vector2d& u1 = cur.features.undistorted[i1];
       const Eigen::Vector2d& u2 = n.features.undistorted[i2];
-      const Eigen::Vector2d x1((u1.x() - K_.cx) / K_.fx, (u1.y() - K_.cy) / K_.fy);
-      const Eigen::Vector2d x2((u2.x() - K_.cx) / K_.fx, (u2.y() - K_.cy) / K_.fy);
+      const Eigen::Vector2d x1((u1.x() - cur.K.cx) / cur.K.fx, (u1.y() - cur.K.cy) / cur.K.fy);
+      const Eigen::Vector2d x2((u2.x() - n.K.cx) / n.K.fx, (u2.y() - n.K.cy) / n.K.fy);
       const auto p = triangulate(cur.T_c_w, n.T_c_w, x1, x2);
       if (!p) continue;
       // Enough parallax, small reprojection errors, consistent scales.
@@ -220,14 +216,14 @@ int LocalMapper::triangulateNewPoints(KeyFrameId kf) {
       for (int view = 0; view < 2 && ok; ++view) {
         const SE3& T = view == 0 ? cur.T_c_w : n.T_c_w;
         const Frame& f = view == 0 ? cur.features : n.features;
+        const Intrinsics& K = view == 0 ? cur.K : n.K;
         const int idx = view == 0 ? i1 : i2;
         const Eigen::Vector3d pc = T * *p;
         if (pc.z() <= 0) {
           ok = false;
           break;
         }
-        const Eigen::Vector2d proj(K_.fx * pc.x() / pc.z() + K_.cx,
-                                   K_.fy * pc.y() / pc.z() + K_.cy);
+        const Eigen::Vector2d proj(K.fx * pc.x() / pc.z() + K.cx, K.fy * pc.y() / pc.z() + K.cy);
         const int octave = f.keypoints[idx].octave;
         if ((proj - f.undistorted[idx]).squaredNorm() > 5.991 * scale.sigma2[octave]) ok = false;
       }
@@ -302,7 +298,8 @@ int LocalMapper::fuseInto(KeyFrameId target, const std::vector<MapPointId>& poin
     if (!p || p->observations.count(target) || p->descriptor.empty()) continue;
     const Eigen::Vector3d pc = n->T_c_w * p->p_w;
     if (pc.z() <= 0) continue;
-    const Eigen::Vector2d uv(K_.fx * pc.x() / pc.z() + K_.cx, K_.fy * pc.y() / pc.z() + K_.cy);
+    const Intrinsics K = n->K();
+    const Eigen::Vector2d uv(K.fx * pc.x() / pc.z() + K.cx, K.fy * pc.y() / pc.z() + K.cy);
     const double dist = (p->p_w - center).norm();
     if (p->max_distance > 0 && (dist < 0.8 * p->min_distance || dist > 1.2 * p->max_distance)) {
       continue;
@@ -346,7 +343,6 @@ int LocalMapper::fuseInto(KeyFrameId target, const std::vector<MapPointId>& poin
 void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
   const auto t0 = std::chrono::steady_clock::now();
   BaProblem problem;
-  problem.K = K_;
   std::vector<KeyFrameId> kf_ids;
   std::vector<MapPointId> point_ids;
   uint32_t epoch = 0;
@@ -360,7 +356,8 @@ void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
     for (const auto& id : local) {
       kf_index[id] = static_cast<int>(problem.keyframes.size());
       const KeyFrame* k = map_->keyframe(id);
-      problem.keyframes.push_back({k->T_c_w, false, k->alignedUp(config_.gravity_tolerance_deg)});
+      problem.keyframes.push_back(
+          {k->T_c_w, k->K(), false, k->alignedUp(config_.gravity_tolerance_deg)});
       kf_ids.push_back(id);
     }
     // The first keyframe of the map anchors the gauge when it is in the window.
@@ -384,7 +381,7 @@ void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
           const KeyFrame* fk = map_->keyframe(obs.first);
           if (!fk) continue;
           it = kf_index.emplace(obs.first, static_cast<int>(problem.keyframes.size())).first;
-          problem.keyframes.push_back({fk->T_c_w, true, std::nullopt});
+          problem.keyframes.push_back({fk->T_c_w, fk->K(), true, std::nullopt});
           kf_ids.push_back(obs.first);
         }
         const KeyFrame* ok = map_->keyframe(obs.first);

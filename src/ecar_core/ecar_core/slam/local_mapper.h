@@ -3,7 +3,7 @@
 // of duplicates, local bundle adjustment (Ceres) and culling of redundant
 // points and keyframes.
 //
-//   LocalMapper mapper(&map, &place_index, camera, config);
+//   LocalMapper mapper(&map, &place_index, config);
 //   mapper.startThread();   // or processPending() after each insert (deterministic)
 //   mapper.insert(keyframe_id);
 //
@@ -31,7 +31,8 @@ namespace ecar {
 class LocalMapper {
  public:
   /// `keypoints` may be null.
-  LocalMapper(Map* map, PlaceIndex* index, const PinholeCamera& camera, const SlamConfig& config,
+  /// Each keyframe is mapped with its own camera (KeyFrame::camera).
+  LocalMapper(Map* map, PlaceIndex* index, const SlamConfig& config,
               KeypointIndex* keypoints = nullptr);
   ~LocalMapper();
   void insert(KeyFrameId kf);
@@ -71,8 +72,6 @@ class LocalMapper {
   Map* map_;
   PlaceIndex* index_;
   KeypointIndex* keypoints_;
-  PinholeCamera camera_;
-  Intrinsics K_;
   SlamConfig config_;
   mutable std::mutex queue_mutex_;
   std::condition_variable queue_cv_;

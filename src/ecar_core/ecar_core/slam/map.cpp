@@ -82,6 +82,7 @@ std::vector<KeyFrameId> Map::bestCovisible(KeyFrameId id, size_t n, int min_weig
 }
 
 KeyFrameId Map::addKeyFrame(KeyFrame kf) {
+  if (!kf.camera) throw Error("Map::addKeyFrame: the keyframe has no camera");
   kf.id = KeyFrameId(next_keyframe_++);
   if (kf.points.size() != kf.features.size()) kf.points.assign(kf.features.size(), MapPointId());
   const KeyFrameId id = kf.id;
@@ -304,6 +305,9 @@ void Map::insertKeyFrame(KeyFrame kf) {
   if (!kf.id.valid()) throw Error("Map::insertKeyFrame: invalid keyframe id 0");
   if (keyframes_.count(kf.id)) {
     throw Error("Map::insertKeyFrame: keyframe " + std::to_string(kf.id.value) + " is present");
+  }
+  if (!kf.camera) {
+    throw Error("Map::insertKeyFrame: keyframe " + std::to_string(kf.id.value) + " has no camera");
   }
   if (kf.points.size() != kf.features.size()) {
     throw Error("Map::insertKeyFrame: keyframe " + std::to_string(kf.id.value) + " has " +

@@ -35,6 +35,7 @@ struct KeyFrame {
   uint32_t frame_index = 0;
   double timestamp = 0.0;
   SE3 T_c_w = SE3::Identity();                       ///< world to camera
+  CameraPtr camera;                                  ///< the device's camera (never null in a map)
   Frame features;                                    ///< keypoints, undistorted, descriptors, grid
   std::vector<MapPointId> points;                    ///< per keypoint; invalid id = none
   std::unordered_map<KeyFrameId, int> covisibility;  ///< shared map points per neighbour
@@ -42,6 +43,8 @@ struct KeyFrame {
 
   Eigen::Vector3d center() const { return T_c_w.inverse().translation(); }
   SE3 T_w_c() const { return T_c_w.inverse(); }
+  /// Intrinsics of the keyframe's (undistorted) camera.
+  Intrinsics K() const { return camera->intrinsics(); }
   int numTrackedPoints(int min_observations = 1) const;
   /// The keyframe's measured up direction (its gravity reading, normalised, in
   /// the camera frame) when its pose agrees with it within tol_deg, i.e. the
@@ -102,7 +105,8 @@ class Map {
   // ---- write access (hold writeLock)
   KeyFrame* mutableKeyFrame(KeyFrameId id);
   MapPoint* mutablePoint(MapPointId id);
-  KeyFrameId addKeyFrame(KeyFrame kf);  ///< assigns the id
+  /// Assigns the id. Throws ecar::Error when the keyframe has no camera.
+  KeyFrameId addKeyFrame(KeyFrame kf);
   MapPointId addPoint(const Eigen::Vector3d& p_w, KeyFrameId reference);
   /// Observation of point `pid` by keypoint `idx` of keyframe `kid` (both ways).
   void addObservation(MapPointId pid, KeyFrameId kid, int idx);
@@ -124,8 +128,8 @@ class Map {
   KeyFrameId nextKeyFrameId() const { return KeyFrameId(next_keyframe_); }
   MapPointId nextPointId() const { return MapPointId(next_point_); }
   /// Inserts a keyframe under its own id, as it was saved; its point slots must
-  /// match its keypoints. Throws ecar::Error for an invalid or present id or a
-  /// slot count unlike the keypoints. Hold writeLock (or own an unshared map).
+  /// match its keypoints. Throws ecar::Error for an invalid or present id, a
+  /// slot count unlike the keypoints or a missing camera. Hold writeLock (or own an unshared map).
   void insertKeyFrame(KeyFrame kf);
   /// Inserts a point under its own id; its observations are taken as they are
   /// (the keyframes' slots must already hold it). Throws ecar::Error for an

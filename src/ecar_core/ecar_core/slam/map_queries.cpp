@@ -37,6 +37,12 @@ void summarise(const Map& map, const KeyFrame& kf, KeyFrameSummary* out) {
 
 }  // namespace
 
+CameraPtr keyframeCamera(const Map& map, KeyFrameId id) {
+  auto lock = map.readLock();
+  const KeyFrame* kf = map.keyframe(id);
+  return kf ? kf->camera : nullptr;
+}
+
 std::optional<KeyFrameSummary> keyframeSummary(const Map& map, KeyFrameId id) {
   auto lock = map.readLock();
   const KeyFrame* kf = map.keyframe(id);

@@ -39,6 +39,9 @@ struct KeyFrameSummary {
 /// nullopt when the keyframe is unknown or was culled.
 std::optional<KeyFrameSummary> keyframeSummary(const Map& map, KeyFrameId id);
 
+/// The camera a keyframe was made with; null when it is not in the map.
+CameraPtr keyframeCamera(const Map& map, KeyFrameId id);
+
 /// A keyframe and the map points around it, copied in one read.
 struct KeyFrameNeighbourhood : KeyFrameSummary {
   /// Live map points of the keyframe and of its `neighbours` best covisible

@@ -26,12 +26,15 @@ struct Projection {
 };
 
 Projection project(const PointSample& p, const SE3& T_c_w, const Eigen::Vector3d& center,
-                   const Intrinsics& K, const ScaleInfo& scale, int width, int height) {
+                   const Intrinsics& K, const ScaleInfo& scale, const Frame& frame) {
   Projection r;
   const Eigen::Vector3d pc = T_c_w * p.p_w;
   if (pc.z() <= 1e-3) return r;
   r.uv = {K.fx * pc.x() / pc.z() + K.cx, K.fy * pc.y() / pc.z() + K.cy};
-  if (r.uv.x() < 0 || r.uv.y() < 0 || r.uv.x() >= width || r.uv.y() >= height) return r;
+  if (r.uv.x() < frame.min_u || r.uv.y() < frame.min_v || r.uv.x() >= frame.max_u ||
+      r.uv.y() >= frame.max_v) {
+    return r;
+  }
   const Eigen::Vector3d po = p.p_w - center;
   r.dist = po.norm();
   if (p.max_distance > 0) {
@@ -92,7 +95,6 @@ int searchByProjection(const Frame& frame, const SE3& T_c_w, const Intrinsics& K
     match_point_index->assign(frame.size(), -1);
   }
   const Eigen::Vector3d center = T_c_w.inverse().translation();
-  const int width = frame.width, height = frame.height;
   std::vector<int> candidates;
   std::vector<int> best_dist(frame.size(), std::numeric_limits<int>::max());
   std::vector<int> owner(frame.size(), -1);
@@ -106,7 +108,7 @@ int searchByProjection(const Frame& frame, const SE3& T_c_w, const Intrinsics& K
   for (size_t pi = 0; pi < points.size(); ++pi) {
     const PointSample& p = points[pi];
     if (!taken.empty() && std::binary_search(taken.begin(), taken.end(), p.id)) continue;
-    const Projection pr = project(p, T_c_w, center, K, scale, width, height);
+    const Projection pr = project(p, T_c_w, center, K, scale, frame);
     if (!pr.ok) continue;
     const int min_level = p.octave_hint >= 0 ? std::max(0, p.octave_hint - 1) : pr.level - 1;
     const int max_level = p.octave_hint >= 0 ? p.octave_hint + 1 : pr.level + 1;
@@ -237,19 +239,24 @@ std::vector<std::pair<int, int>> searchForTriangulation(const Frame& f1, const S
                                                         const std::vector<bool>& used1,
                                                         const Frame& f2, const SE3& T2_c_w,
                                                         const std::vector<bool>& used2,
-                                                        const Intrinsics& K,
+                                                        const Intrinsics& K1, const Intrinsics& K2,
                                                         const ScaleInfo& scale) {
-  // Fundamental matrix F21 (x2^T F21 x1 = 0 in pixels).
+  // Fundamental matrix F21 (x2^T F21 x1 = 0 in undistorted pixels), each view
+  // with its own camera.
   const SE3 T21 = T2_c_w * T1_c_w.inverse();
-  Eigen::Matrix3d Kmat;
-  Kmat << K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1;
-  const Eigen::Matrix3d Kinv = Kmat.inverse();
-  const Eigen::Matrix3d F21 = Kinv.transpose() * skew(T21.translation()) * T21.linear() * Kinv;
+  const auto inverseK = [](const Intrinsics& K) {
+    Eigen::Matrix3d Kinv;
+    Kinv << 1.0 / K.fx, 0, -K.cx / K.fx, 0, 1.0 / K.fy, -K.cy / K.fy, 0, 0, 1;
+    return Kinv;
+  };
+  const Eigen::Matrix3d F21 =
+      inverseK(K2).transpose() * skew(T21.translation()) * T21.linear() * inverseK(K1);
   // Epipole of camera 1 in image 2: keypoints too close to it give no depth.
   const Eigen::Vector3d c1_in_2 = T21.translation();
   Eigen::Vector2d epipole(-1e9, -1e9);
   if (c1_in_2.z() > 1e-6) {
-    epipole = {K.fx * c1_in_2.x() / c1_in_2.z() + K.cx, K.fy * c1_in_2.y() / c1_in_2.z() + K.cy};
+    epipole = {K2.fx * c1_in_2.x() / c1_in_2.z() + K2.cx,
+               K2.fy * c1_in_2.y() / c1_in_2.z() + K2.cy};
   }
   std::vector<int> free2;
   for (size_t i = 0; i < f2.size(); ++i) {

@@ -49,10 +49,14 @@ int searchByDescriptor(const Frame& frame, const std::vector<PointSample>& point
                        std::vector<MapPointId>* matches, std::vector<int>* match_point_index);
 
 /// Pairs of free keypoints (i1 in f1, i2 in f2) that satisfy the epipolar
-/// constraint between the two posed views and match by descriptor.
-std::vector<std::pair<int, int>> searchForTriangulation(
-    const Frame& f1, const SE3& T1_c_w, const std::vector<bool>& used1, const Frame& f2,
-    const SE3& T2_c_w, const std::vector<bool>& used2, const Intrinsics& K, const ScaleInfo& scale);
+/// constraint between the two posed views (each with its own camera, K1 and
+/// K2) and match by descriptor.
+std::vector<std::pair<int, int>> searchForTriangulation(const Frame& f1, const SE3& T1_c_w,
+                                                        const std::vector<bool>& used1,
+                                                        const Frame& f2, const SE3& T2_c_w,
+                                                        const std::vector<bool>& used2,
+                                                        const Intrinsics& K1, const Intrinsics& K2,
+                                                        const ScaleInfo& scale);
 
 /// Keeps only the matches whose orientation change falls in the three most
 /// common bins of a 30-bin histogram. `delta_deg[i]` < 0 for unused entries.

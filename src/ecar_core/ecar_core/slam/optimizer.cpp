@@ -364,7 +364,10 @@ BaResult LocalBa::run() {
   poses_.resize(nk);
   std::vector<bool> pose_ok(nk);
   for (int k = 0; k < nk; ++k) {
-    pose_ok[k] = isFinite(ba_.keyframes[k].T_c_w);
+    const Intrinsics& K = ba_.keyframes[k].K;
+    // A pose whose camera is unusable cannot be evaluated: its observations are outliers.
+    pose_ok[k] = isFinite(ba_.keyframes[k].T_c_w) && K.fx > 0 && K.fy > 0 && std::isfinite(K.fx) &&
+                 std::isfinite(K.fy) && std::isfinite(K.cx) && std::isfinite(K.cy);
     if (pose_ok[k]) poseToParams(ba_.keyframes[k].T_c_w, poses_[k].data());
   }
   points_.resize(np);
@@ -386,11 +389,12 @@ BaResult LocalBa::run() {
     if (o.keyframe < 0 || o.keyframe >= nk || o.point < 0 || o.point >= np) continue;
     if (!pose_ok[o.keyframe] || !point_ok[o.point]) continue;
     if (!isFiniteVector(o.uv) || !isValidInformation(o.inv_sigma2)) continue;
-    if (!std::isfinite(
-            chi2(ba_.K, o.uv, o.inv_sigma2, poses_[o.keyframe].data(), points_[o.point].data()))) {
+    if (!std::isfinite(chi2(ba_.keyframes[o.keyframe].K, o.uv, o.inv_sigma2,
+                            poses_[o.keyframe].data(), points_[o.point].data()))) {
       continue;
     }
-    costs_[i].reset(ReprojectionError::Create(o.uv, std::sqrt(o.inv_sigma2), ba_.K));
+    costs_[i].reset(
+        ReprojectionError::Create(o.uv, std::sqrt(o.inv_sigma2), ba_.keyframes[o.keyframe].K));
     active_[i] = true;
   }
   // Gravity priors on free keyframes with a usable up direction.
@@ -510,7 +514,7 @@ void LocalBa::classify() {
   for (size_t i = 0; i < costs_.size(); ++i) {
     if (!costs_[i]) continue;
     const BaProblem::Observation& o = ba_.observations[i];
-    active_[i] = chi2(ba_.K, o.uv, o.inv_sigma2, poses_[o.keyframe].data(),
+    active_[i] = chi2(ba_.keyframes[o.keyframe].K, o.uv, o.inv_sigma2, poses_[o.keyframe].data(),
                       points_[o.point].data()) <= config_.chi2_threshold;
   }
 }
@@ -521,8 +525,8 @@ double LocalBa::cost(const std::vector<std::array<double, 6>>& poses,
   for (size_t i = 0; i < costs_.size(); ++i) {
     if (!active_[i]) continue;
     const BaProblem::Observation& o = ba_.observations[i];
-    total +=
-        0.5 * chi2(ba_.K, o.uv, o.inv_sigma2, poses[o.keyframe].data(), points[o.point].data());
+    total += 0.5 * chi2(ba_.keyframes[o.keyframe].K, o.uv, o.inv_sigma2, poses[o.keyframe].data(),
+                        points[o.point].data());
   }
   return total;
 }

@@ -11,13 +11,10 @@
 #include <ceres/ceres.h>
 #include <Eigen/Core>
 
+#include "ecar_core/common/camera.h"
 #include "ecar_core/common/geometry.h"
 
 namespace ecar {
-
-struct Intrinsics {
-  double fx = 0, fy = 0, cx = 0, cy = 0;
-};
 
 /// One observation of a fixed 3D point in the camera being optimised.
 struct PoseObservation {
@@ -54,6 +51,7 @@ PoseOptimizerResult optimizePose(const Intrinsics& K, const std::vector<PoseObse
 struct BaProblem {
   struct KeyFrame {
     SE3 T_c_w;
+    Intrinsics K;  ///< the keyframe's own camera (devices differ)
     bool fixed = false;
     /// Measured up direction (unit, camera frame; the accelerometer's gravity
     /// reading normalised) where the map's z axis is up: with
@@ -70,7 +68,6 @@ struct BaProblem {
     double inv_sigma2 = 1.0;
     bool outlier = false;  ///< set by localBundleAdjust
   };
-  Intrinsics K;
   std::vector<KeyFrame> keyframes;
   std::vector<Point> points;
   std::vector<Observation> observations;

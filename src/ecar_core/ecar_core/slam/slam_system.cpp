@@ -8,12 +8,12 @@
 namespace ecar {
 
 SlamSystem::SlamSystem(const PinholeCamera& camera, const SlamConfig& config)
-    : camera_(camera),
+    : camera_(std::make_shared<const PinholeCamera>(camera)),
       config_(config),
       map_(ScaleInfo::fromConfig(config.orb)),
       index_(config.place),
       keypoint_index_(config.keypoints),
-      mapper_(&map_, &index_, camera, config, &keypoint_index_) {
+      mapper_(&map_, &index_, config, &keypoint_index_) {
   if (config_.first_epoch < 1) throw Error("SlamConfig: first_epoch must be >= 1");
   map_.setCounters(map_.nextKeyFrameId(), map_.nextPointId(), config_.first_epoch);
   if (!config_.synchronous_mapping) mapper_.startThread();
@@ -21,14 +21,40 @@ SlamSystem::SlamSystem(const PinholeCamera& camera, const SlamConfig& config)
 
 SlamSystem::~SlamSystem() { mapper_.stopThread(); }
 
-Tracker& SlamSystem::tracker(DeviceId device) {
+std::shared_ptr<Tracker> SlamSystem::sharedTracker(DeviceId device) {
   std::lock_guard<std::mutex> lock(trackers_mutex_);
   auto& t = trackers_[device];
   if (!t) {
-    t = std::make_unique<Tracker>(device, &map_, &index_, &mapper_, camera_, config_,
+    const auto c = cameras_.find(device);
+    t = std::make_shared<Tracker>(device, &map_, &index_, &mapper_,
+                                  c != cameras_.end() ? c->second : camera_, config_,
                                   &keypoint_index_);
   }
-  return *t;
+  return t;
+}
+
+Tracker& SlamSystem::tracker(DeviceId device) { return *sharedTracker(device); }
+
+void SlamSystem::setCamera(DeviceId device, const PinholeCamera& camera, double tolerance) {
+  std::lock_guard<std::mutex> lock(trackers_mutex_);
+  auto it = cameras_.find(device);
+  if (it != cameras_.end() && it->second->difference(camera, tolerance).empty()) return;
+  // One shared camera object per distinct camera: keyframes of devices with
+  // the same camera share it, and the map file stores it once.
+  CameraPtr shared;
+  if (camera_->difference(camera, tolerance).empty()) shared = camera_;
+  for (const auto& kv : cameras_) {
+    if (!shared && kv.second->difference(camera, tolerance).empty()) shared = kv.second;
+  }
+  if (!shared) shared = std::make_shared<const PinholeCamera>(camera);
+  cameras_[device] = shared;
+  trackers_.erase(device);  // the next track() starts with the new camera
+}
+
+CameraPtr SlamSystem::camera(DeviceId device) const {
+  std::lock_guard<std::mutex> lock(trackers_mutex_);
+  const auto it = cameras_.find(device);
+  return it != cameras_.end() ? it->second : camera_;
 }
 
 void SlamSystem::removeDevice(DeviceId device) {
@@ -40,7 +66,9 @@ TrackResult SlamSystem::track(DeviceId device, const cv::Mat& image, double time
                               uint32_t frame_index, const std::optional<Eigen::Vector3d>& gravity_c,
                               const std::optional<SE3>& T_o_c) {
   std::shared_lock<std::shared_mutex> session(session_mutex_);
-  TrackResult result = tracker(device).track(image, timestamp, frame_index, gravity_c, T_o_c);
+  // A shared reference: setCamera() may replace the device's tracker meanwhile.
+  const std::shared_ptr<Tracker> tracker = sharedTracker(device);
+  TrackResult result = tracker->track(image, timestamp, frame_index, gravity_c, T_o_c);
   auto lock = map_.readLock();
   result.map_epoch = map_.epoch();  // installMap() cannot run while `session` is held
   return result;
@@ -60,13 +88,13 @@ void SlamSystem::writeMapSection(MapFileWriter* writer) const {
   std::vector<uint8_t> bytes;
   {
     auto lock = map_.readLock();
-    bytes = encodeSlamMap(map_, camera_);
+    bytes = encodeSlamMap(map_, *camera_);
   }
   writer->addSection(kSlamSection, std::move(bytes));
 }
 
 std::unique_ptr<Map> SlamSystem::readMapSection(const MapFileReader& reader) const {
-  return decodeSlamMap(reader.reader(kSlamSection), camera_, map_.scale());
+  return decodeSlamMap(reader.reader(kSlamSection), map_.scale());
 }
 
 void SlamSystem::installMap(std::unique_ptr<Map> map) {

@@ -1,7 +1,10 @@
 // Monocular ORB SLAM for the edge server: one shared Map, a Tracker per
-// device, and a LocalMapper that takes keyframes from every device.
+// device, and a LocalMapper that takes keyframes from every device. Each
+// device has its own camera (setCamera; the constructor's camera is the
+// default); its keyframes carry it, and mapping uses each keyframe's own.
 //
-//   SlamSystem slam(camera, config);
+//   SlamSystem slam(default_camera, config);
+//   slam.setCamera(device, camera);   // optional
 //   TrackResult r = slam.track(device, image, timestamp, frame_index, gravity, odometry);
 //
 // Trackers of different devices may run concurrently (each on its own thread);
@@ -34,12 +37,23 @@ class MapFileWriter;
 
 class SlamSystem {
  public:
+  /// `camera`: the camera of devices that have none of their own (setCamera).
   SlamSystem(const PinholeCamera& camera, const SlamConfig& config = SlamConfig());
   ~SlamSystem();
   /// Tracker of a device, created on first use. Different devices may be
   /// tracked from different threads at once; one device from one thread.
   /// Track through SlamSystem::track(), which installMap() waits for.
   Tracker& tracker(DeviceId device);
+  /// Sets a device's camera. Cameras that differ by at most `tolerance`
+  /// (PinholeCamera::difference) count as one and are shared. A change
+  /// restarts the device's tracker (it relocalises; a track() running on the
+  /// old one finishes); the keyframes it made keep the camera they were made
+  /// with. The camera stays with the device id when removeDevice() drops its
+  /// tracker (a reconnect sets it again).
+  void setCamera(DeviceId device, const PinholeCamera& camera, double tolerance = 1e-9);
+  /// The camera a device's images are tracked with (the default camera when
+  /// it has none of its own).
+  CameraPtr camera(DeviceId device) const;
   /// Forgets a device's tracker (its motion model, lost state, initialisation
   /// views); its keyframes stay in the map. The caller makes sure no thread is
   /// inside track() for that device. The next track() starts a new tracker.
@@ -58,10 +72,10 @@ class SlamSystem {
   /// Replaces the map by the one saved in `path` (readMapSection, then
   /// installMap). Throws ecar::Error naming the file, section and field when
   /// the file is missing, foreign, of another version, truncated, corrupted
-  /// (CRC) or inconsistent, or made with another camera; the current map is
-  /// then untouched.
+  /// (CRC) or inconsistent, or made with another ORB pyramid; the current map
+  /// is then untouched. Keyframes keep the cameras they were saved with.
   void loadMap(const std::string& path);
-  /// Adds the "slam" section (keyframes, points, id counters, epoch, camera)
+  /// Adds the "slam" section (keyframes, points, id counters, epoch, cameras)
   /// to a map file being assembled, so other components can add theirs.
   void writeMapSection(MapFileWriter* writer) const;
   /// Decodes the "slam" section of a map file into a new map, with everything
@@ -79,10 +93,11 @@ class SlamSystem {
   Map& map() { return map_; }
   const Map& map() const { return map_; }
   LocalMapper& mapper() { return mapper_; }
-  const PinholeCamera& camera() const { return camera_; }
+  /// The default camera (of devices with none of their own).
+  const PinholeCamera& camera() const { return *camera_; }
 
  private:
-  PinholeCamera camera_;
+  CameraPtr camera_;
   SlamConfig config_;
   Map map_;
   PlaceIndex index_;
@@ -90,8 +105,10 @@ class SlamSystem {
   LocalMapper mapper_;
   /// Shared by track() calls, exclusive while a map is installed.
   std::shared_mutex session_mutex_;
-  std::mutex trackers_mutex_;
-  std::unordered_map<DeviceId, std::unique_ptr<Tracker>> trackers_;
+  mutable std::mutex trackers_mutex_;  // guards trackers_ and cameras_
+  std::shared_ptr<Tracker> sharedTracker(DeviceId device);
+  std::unordered_map<DeviceId, std::shared_ptr<Tracker>> trackers_;
+  std::unordered_map<DeviceId, CameraPtr> cameras_;
 };
 
 }  // namespace ecar

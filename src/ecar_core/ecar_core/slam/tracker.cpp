@@ -12,6 +12,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "ecar_core/common/error.h"
 #include "ecar_core/slam/local_mapper.h"
 #include "ecar_core/slam/matcher.h"
 #include "ecar_core/slam/tracker.h"
@@ -36,14 +37,14 @@ const char* toString(TrackingState state) {
 }
 
 Tracker::Tracker(DeviceId device, Map* map, PlaceIndex* index, LocalMapper* mapper,
-                 const PinholeCamera& camera, const SlamConfig& config, KeypointIndex* keypoints)
+                 CameraPtr camera, const SlamConfig& config, KeypointIndex* keypoints)
     : device_(device),
       map_(map),
       index_(index),
       keypoints_(keypoints),
       mapper_(mapper),
-      camera_(camera),
-      K_(intrinsicsOf(camera)),
+      camera_((camera ? void() : throw Error("Tracker: no camera"), std::move(camera))),
+      K_(camera_->intrinsics()),
       config_(config),
       extractor_(config.orb) {}
 
@@ -68,10 +69,10 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
                            const std::optional<SE3>& T_o_c) {
   TrackResult result;
   const auto t0 = std::chrono::steady_clock::now();
-  if (image.empty() || image.cols != camera_.width() || image.rows != camera_.height()) {
+  if (image.empty() || image.cols != camera_->width() || image.rows != camera_->height()) {
     result.state = state_;
-    result.message = "image is empty or not " + std::to_string(camera_.width()) + "x" +
-                     std::to_string(camera_.height());
+    result.message = "image is empty or not " + std::to_string(camera_->width()) + "x" +
+                     std::to_string(camera_->height());
     if (state_ == TrackingState::kOk) state_ = TrackingState::kLost;
     result.state = state_;
     return result;
@@ -88,7 +89,7 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
   current_.gravity_c = gravity_c;
   current_.T_o_c = T_o_c;
   extractor_.detectAndCompute(gray, &current_.keypoints, &current_.descriptors);
-  current_.finalize(camera_);
+  current_.finalize(*camera_);
   result.orb_ms = msSince(t0);
   const auto t1 = std::chrono::steady_clock::now();
   matches_.assign(current_.size(), MapPointId());
@@ -393,6 +394,7 @@ KeyFrameId Tracker::createKeyFrame() {
   kf.frame_index = current_.frame_index;
   kf.timestamp = current_.timestamp;
   kf.T_c_w = T_c_w_;
+  kf.camera = camera_;
   kf.features = current_;
   KeyFrameId id;
   {

@@ -61,9 +61,8 @@ class LocalMapper;
 class Tracker {
  public:
   /// `keypoints` may be null (no relocalisation by keypoint matches).
-  Tracker(DeviceId device, Map* map, PlaceIndex* index, LocalMapper* mapper,
-          const PinholeCamera& camera, const SlamConfig& config,
-          KeypointIndex* keypoints = nullptr);
+  Tracker(DeviceId device, Map* map, PlaceIndex* index, LocalMapper* mapper, CameraPtr camera,
+          const SlamConfig& config, KeypointIndex* keypoints = nullptr);
   /// Aligns one grey image. Bad images (empty, wrong size, blank) give a
   /// NOT_INITIALISED/LOST result with a message; nothing throws.
   TrackResult track(const cv::Mat& image, double timestamp, uint32_t frame_index,
@@ -109,7 +108,7 @@ class Tracker {
   PlaceIndex* index_;
   KeypointIndex* keypoints_;
   LocalMapper* mapper_;
-  PinholeCamera camera_;
+  CameraPtr camera_;  ///< the device's camera; its keyframes share it
   Intrinsics K_;
   SlamConfig config_;
   OrbExtractor extractor_;

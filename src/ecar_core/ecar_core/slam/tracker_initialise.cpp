@@ -100,7 +100,7 @@ bool Tracker::initialise(TrackResult* result) {
   if (static_cast<int>(attempts.size()) > config_.init_attempts) {
     attempts.resize(static_cast<size_t>(std::max(1, config_.init_attempts)));
   }
-  const Eigen::Matrix3d K = camera_.K();
+  const Eigen::Matrix3d K = camera_->K();
   std::optional<TwoViewResult> chosen;
   const Frame* first = nullptr;
   std::vector<std::pair<int, int>> pairs;
@@ -155,6 +155,7 @@ bool Tracker::initialise(TrackResult* result) {
   if (map_->initialized()) return false;  // another device was faster: relocalise next time
   KeyFrame kf1, kf2;
   kf1.device = kf2.device = device_;
+  kf1.camera = kf2.camera = camera_;
   kf1.frame_index = init_frame.frame_index;
   kf1.timestamp = init_frame.timestamp;
   kf1.T_c_w = T_c1_w;

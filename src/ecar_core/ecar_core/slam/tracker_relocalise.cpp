@@ -90,7 +90,7 @@ bool Tracker::relocaliseByPlace() {
       px.push_back(current_.undistorted[i]);
       kp_index.push_back(static_cast<int>(i));
     }
-    const Eigen::Matrix3d K = camera_.K();
+    const Eigen::Matrix3d K = camera_->K();
     const PnpResult pnp = solvePnpRansac(pw, px, K, config_.pnp);
     if (!pnp.success) continue;
     matches_.assign(current_.size(), MapPointId());
@@ -182,7 +182,7 @@ bool Tracker::relocaliseByKeypoints() {
       if (relocaliseByGravity(pw, px, ids, rows, ranked.front().second)) return true;
     }
   }
-  const Eigen::Matrix3d K = camera_.K();
+  const Eigen::Matrix3d K = camera_->K();
   std::unordered_set<KeyFrameId> tried;
   int attempts = 0;
   for (const auto& r : ranked) {
@@ -239,7 +239,7 @@ bool Tracker::relocaliseByGravity(const std::vector<Eigen::Vector3d>& points_w,
                                   const std::vector<Eigen::Vector2d>& pixels,
                                   const std::vector<MapPointId>& ids, const std::vector<int>& rows,
                                   KeyFrameId reference) {
-  const Eigen::Matrix3d K = camera_.K();
+  const Eigen::Matrix3d K = camera_->K();
   PnpConfig pnp_config = config_.pnp;
   pnp_config.ransac_iterations = std::max(pnp_config.ransac_iterations, 2000);
   pnp_config.min_inliers = config_.keypoint_gravity_min_inliers;

@@ -156,6 +156,45 @@ TEST(PinholeCameraTest, RejectsInvalidParameters) {
   p = CameraParams{};
   p.dist[0] = std::nan("");
   EXPECT_THROW(PinholeCamera{p}, Error);
+  // Sizes a hostile camera_info could make the server allocate for.
+  p = CameraParams{};
+  p.width = kMaxCameraSide + 1;
+  EXPECT_THROW(PinholeCamera{p}, Error);
+  // A distortion that folds the image within its border cannot be inverted.
+  p = CameraParams{};
+  p.dist = {-3.0, 0.0, 0.0, 0.0, 0.0};
+  try {
+    PinholeCamera{p};
+    ADD_FAILURE() << "a folding distortion was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("folds the image"), std::string::npos) << e.what();
+  }
+}
+
+// The undistorted image box holds every undistorted pixel (keypoint grids and
+// projection checks rely on it); without distortion it is the image.
+TEST(PinholeCameraTest, UndistortedBoundsHoldEveryPixel) {
+  const PinholeCamera euroc = eurocCamera();
+  for (int v = 0; v < euroc.height(); v += 7) {
+    for (int u = 0; u < euroc.width(); u += 7) {
+      const Eigen::Vector2d x = euroc.undistortPoint(Eigen::Vector2d(u, v));
+      ASSERT_GE(x.x(), euroc.minU());
+      ASSERT_GE(x.y(), euroc.minV());
+      ASSERT_LT(x.x(), euroc.maxU());
+      ASSERT_LT(x.y(), euroc.maxV());
+    }
+  }
+  EXPECT_LT(euroc.minU(), -10.0);  // barrel distortion: the corners move out
+  EXPECT_GT(euroc.maxU(), euroc.width() + 10.0);
+  const PinholeCamera ideal{CameraParams{}};
+  EXPECT_EQ(ideal.minU(), 0.0);
+  EXPECT_EQ(ideal.maxU(), 640.0);
+  EXPECT_EQ(ideal.maxV(), 480.0);
+  EXPECT_EQ(ideal.difference(ideal), "");
+  CameraParams other;
+  other.fx = 530.0;
+  EXPECT_NE(PinholeCamera(other).difference(ideal).find("fx 530"), std::string::npos);
+  EXPECT_EQ(PinholeCamera(other).difference(ideal, 0.01), "");
 }
 
 TEST(CameraYamlTest, EveryShippedCameraFileLoads) {

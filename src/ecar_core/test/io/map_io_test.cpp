@@ -192,6 +192,7 @@ TEST(MapIoTest, DamagedContainersAreRejectedWithTheReason) {
 
 KeyFrame keyFrameWith(uint32_t id, int keypoints) {
   KeyFrame kf;
+  kf.camera = std::make_shared<const PinholeCamera>(CameraParams());
   kf.id = KeyFrameId(id);
   kf.features.keypoints.resize(keypoints);
   kf.points.resize(keypoints);
@@ -356,6 +357,7 @@ void expectSameMap(const Map& a, const Map& b) {
       EXPECT_TRUE(x.features.T_o_c->isApprox(*y.features.T_o_c, 0.0));
     }
     EXPECT_TRUE(x.points == y.points) << "keyframe " << id;
+    EXPECT_EQ(x.camera->difference(*y.camera, 0.0), "") << "keyframe " << id;
     EXPECT_EQ(x.features.width, y.features.width);
     // The grid was rebuilt: it finds the same keypoints.
     std::vector<int> near_x, near_y;
@@ -405,6 +407,54 @@ TEST(MapIoSlamTest, MapRoundTripsExactly) {
   }
   std::printf("corridor map: %zu keyframes, %zu points, %zu bytes, saved in %.1f ms\n",
               loaded.map().numKeyFrames(), loaded.map().numPoints(), file.fileSize(), s.save_ms);
+}
+
+// Keyframes of devices with different cameras: each keyframe comes back with
+// its own camera (one shared object per saved camera) and its keypoints
+// undistorted with it; a camera index past the list is refused by name.
+TEST(MapIoSlamTest, EachKeyFrameKeepsItsCamera) {
+  const Session& s = session();
+  const ScaleInfo scale = s.slam->map().scale();
+  const MapFileReader file = MapFileReader::open(s.path);
+  std::unique_ptr<Map> map = decodeSlamMap(file.reader(kSlamSection), scale);
+  CameraParams phone;
+  phone.width = 800;
+  phone.height = 600;
+  phone.fx = phone.fy = 600.0;
+  phone.cx = 399.5;
+  phone.cy = 299.5;
+  phone.dist = {-0.12, 0.05, 0.001, -0.0008, 0.0};
+  const CameraPtr other = std::make_shared<const PinholeCamera>(phone);
+  const std::vector<KeyFrameId> ids = map->keyframeIds();
+  ASSERT_GE(ids.size(), 4u);
+  for (size_t k = 1; k < ids.size(); k += 2) {
+    KeyFrame* kf = map->mutableKeyFrame(ids[k]);
+    kf->camera = other;
+    kf->features.finalize(*other);
+  }
+  const std::vector<uint8_t> bytes = encodeSlamMap(*map, s.renderer->camera());
+  const std::unique_ptr<Map> back =
+      decodeSlamMap(ByteReader(bytes.data(), bytes.size(), "slam"), scale);
+  expectSameMap(*map, *back);
+  // Two cameras, each one object shared by its keyframes.
+  EXPECT_EQ(back->keyframe(ids[1])->camera, back->keyframe(ids[3])->camera);
+  EXPECT_EQ(back->keyframe(ids[0])->camera, back->keyframe(ids[2])->camera);
+  EXPECT_NE(back->keyframe(ids[0])->camera, back->keyframe(ids[1])->camera);
+  EXPECT_EQ(back->keyframe(ids[1])->features.min_u, other->minU());
+  EXPECT_LT(other->minU(), -1.0);  // barrel distortion: the undistorted image is larger
+  EXPECT_EQ(decodeSlamCamera(ByteReader(bytes.data(), bytes.size(), "slam"))
+                .difference(s.renderer->camera(), 0.0),
+            "");
+
+  // The first keyframe's camera index (after version, camera count, the two
+  // cameras, pyramid, epoch and counters, keyframe count, id, device, frame,
+  // timestamp and pose) set past the list.
+  std::vector<uint8_t> bad = bytes;
+  const size_t index_at = 4 + 4 + 2 * 80 + 4 + 4 * scale.levels() + 12 + 4 + 12 + 8 + 96;
+  bad[index_at] = 9;
+  const std::string e =
+      errorOf([&] { decodeSlamMap(ByteReader(bad.data(), bad.size(), "slam"), scale); });
+  EXPECT_TRUE(contains(e, "field 'camera index'") && contains(e, "9 is not below")) << e;
 }
 
 // The pose the original run gave an upload, and the one a device joining the
@@ -531,12 +581,20 @@ TEST(MapIoSlamTest, BadFilesLeaveTheMapUntouched) {
   }
   EXPECT_TRUE(
       contains(errorOf([&] { slam.loadMap(tempDir().file("missing.ecarmap")); }), "cannot open"));
-  // The right file for another camera.
+  // A system with another default camera loads the file: the keyframes keep
+  // the camera they were made with (frames are undistorted with it).
   CameraParams other = s.renderer->camera().params();
   other.fx = 500.0;
   SlamSystem other_camera{PinholeCamera(other)};
-  const std::string e = errorOf([&] { other_camera.loadMap(s.path); });
-  EXPECT_TRUE(contains(e, "field 'camera.fx'")) << e;
+  other_camera.loadMap(s.path);
+  {
+    auto lock = other_camera.map().readLock();
+    ASSERT_GT(other_camera.map().numKeyFrames(), 0u);
+    for (const KeyFrameId id : other_camera.map().keyframeIds()) {
+      EXPECT_EQ(other_camera.map().keyframe(id)->camera->params().fx,
+                s.renderer->camera().params().fx);
+    }
+  }
   EXPECT_EQ(snapshot(), before);
 
   // A good load still works after all that, and resets the tracker: the next

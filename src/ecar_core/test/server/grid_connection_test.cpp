@@ -96,7 +96,7 @@ TEST_F(GridConnectionTest, FloorPlaneCellsAndObjectsInGridMode) {
   EXPECT_EQ(graph.vos().get(near.id)->owner, "device_0");
   EXPECT_FALSE(graph.grid().cellsOfObject(near.id).empty());  // attached to its cells
 
-  const VisibleStructure v = grid.visible(frameAt(T_w_c, {KeyFrameId(1)}));
+  const VisibleStructure v = grid.visible(frameAt(T_w_c, {KeyFrameId(1)}), "device_0");
   EXPECT_TRUE(v.objects_computed);
   ASSERT_EQ(v.planes.size(), 1u);
   EXPECT_EQ(v.planes[0].id, planes[0].id);
@@ -109,7 +109,7 @@ TEST_F(GridConnectionTest, FloorPlaneCellsAndObjectsInGridMode) {
   // Turned around, the camera sees the object behind it and not the others.
   SE3 T_back = lookingAlongX(1.0);
   T_back.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitZ()) * T_back.linear();
-  const VisibleStructure back = grid.visible(frameAt(T_back));
+  const VisibleStructure back = grid.visible(frameAt(T_back), "device_0");
   EXPECT_TRUE(holds(back, behind.id));
   EXPECT_FALSE(holds(back, near.id));
 
@@ -128,7 +128,7 @@ TEST_F(GridConnectionTest, FloorPlaneCellsAndObjectsInGridMode) {
   remove.base_version = 2;
   ASSERT_TRUE(grid.apply(remove).accepted);
   EXPECT_TRUE(graph.grid().cellsOfObject(near.id).empty());
-  EXPECT_FALSE(holds(grid.visible(frameAt(T_w_c)), near.id));
+  EXPECT_FALSE(holds(grid.visible(frameAt(T_w_c), "device_0"), near.id));
   // A rejected change (unknown id) changes nothing.
   move.object_id = ObjectId(99);
   EXPECT_FALSE(grid.apply(move).accepted);
@@ -140,13 +140,13 @@ TEST_F(GridConnectionTest, LostFramesAndDirectSharingSeeNoObjects) {
   GridConnection grid(&graph, direct);
   segmentFloor(&grid, KeyFrameId(1), lookingAlongX(0.0));
   ASSERT_TRUE(grid.apply(registration(lineAt(4.0, 0.0))).accepted);
-  const VisibleStructure v = grid.visible(frameAt(lookingAlongX(0.0)));
+  const VisibleStructure v = grid.visible(frameAt(lookingAlongX(0.0)), "device_0");
   EXPECT_FALSE(v.objects_computed);
   EXPECT_TRUE(v.objects.empty());
   EXPECT_EQ(v.planes.size(), 1u);
   TrackResult lost = frameAt(lookingAlongX(0.0));
   lost.state = TrackingState::kLost;
-  const VisibleStructure none = grid.visible(lost);
+  const VisibleStructure none = grid.visible(lost, "device_0");
   EXPECT_TRUE(none.planes.empty());
   EXPECT_TRUE(none.cells.empty());
 }
@@ -162,8 +162,8 @@ TEST_F(GridConnectionKeyFrameTest, KeyFrameModeFollowsTheLocalKeyFrames) {
   segmentFloor(&grid, KeyFrameId(1), T_w_c);
   const VoOutcome r = graph.vos().registerObject(lineAt(4.0, 0.0), KeyFrameId(1));
   ASSERT_TRUE(r.accepted);
-  EXPECT_TRUE(holds(grid.visible(frameAt(T_w_c, {KeyFrameId(1)})), r.id));
-  EXPECT_FALSE(holds(grid.visible(frameAt(T_w_c, {KeyFrameId(2)})), r.id));
+  EXPECT_TRUE(holds(grid.visible(frameAt(T_w_c, {KeyFrameId(1)}), "device_0"), r.id));
+  EXPECT_FALSE(holds(grid.visible(frameAt(T_w_c, {KeyFrameId(2)}), "device_0"), r.id));
   // Without a keyframe in the map a registration is refused with a reason.
   const VoOutcome no = grid.apply(registration(lineAt(4.0, 0.5)));
   EXPECT_FALSE(no.accepted);
@@ -174,6 +174,7 @@ TEST_F(GridConnectionKeyFrameTest, KeyFrameModeFollowsTheLocalKeyFrames) {
     auto lock = map.writeLock();
     for (double x : {0.0, 6.0}) {
       KeyFrame kf;
+      kf.camera = std::make_shared<const PinholeCamera>(camera640());
       kf.T_c_w = lookingAlongX(x).inverse();
       map.addKeyFrame(std::move(kf));
     }

@@ -33,6 +33,7 @@ class PlaneSegmentationTest : public ::testing::Test {
     }
     const auto keyframeWith = [&](double x, size_t n, bool gravity) {
       KeyFrame kf;
+      kf.camera = std::make_shared<const PinholeCamera>(CameraParams());
       const SE3 T_w_c = lookingAlongX(x);
       kf.T_c_w = T_w_c.inverse();
       kf.features.keypoints.resize(n);

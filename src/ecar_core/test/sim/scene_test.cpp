@@ -41,6 +41,12 @@ TEST(SceneTest, CorridorAndRoomHaveTheRequiredShape) {
   EXPECT_DOUBLE_EQ(size.y(), 2.4);
   EXPECT_DOUBLE_EQ(size.z(), 2.7);
   EXPECT_GE(corridor.devices.size(), 2u);
+  // One device sees through its own camera; the others through the scene's.
+  const DeviceSpec& phone = corridor.device("phone_800");
+  ASSERT_TRUE(phone.camera.has_value());
+  EXPECT_EQ(corridor.cameraOf(phone).width, 800);
+  EXPECT_NE(corridor.cameraOf(phone).dist[0], 0.0);
+  EXPECT_EQ(corridor.cameraOf(corridor.device("device_0")).width, 640);
   const Scene room = loadScene(kScenes + "/room.yaml");
   const Eigen::Vector3d rs = room.spaces[0].max - room.spaces[0].min;
   EXPECT_DOUBLE_EQ(rs.x(), 6.0);
@@ -126,6 +132,13 @@ TEST_F(BadSceneTest, ErrorsNameTheKey) {
       {base + "devices:\n  - name: a-b\n    trajectory: {type: walk, waypoints: [[1, 1], [2, "
               "1]]}\n",
        "must be a ROS name"},
+      {base + "devices:\n  - name: d\n    camera: {width: 64, height: 48, fx: 50, fy: 50}\n"
+              "    trajectory: {type: walk, waypoints: [[1, 1], [2, 1]]}\n",
+       "devices[0].camera: missing key 'cx'"},
+      {base + "devices:\n  - name: d\n    camera: {width: 64, height: 48, fx: 50, fy: 50, cx: 1, "
+              "cy: 1, distortion: [0, 0, 0]}\n    trajectory: {type: walk, waypoints: [[1, 1], [2, "
+              "1]]}\n",
+       "devices[0].camera: key 'distortion' must be"},
       {base + "devices:\n  - name: d\n    trajectory: {type: walk, waypoints: [[1, 1], [2, 1]]}\n"
               "  - name: d\n    trajectory: {type: walk, waypoints: [[1, 1], [2, 1]]}\n",
        "duplicate device name 'd'"},

@@ -10,6 +10,7 @@ namespace {
 // A keyframe with `n` keypoints (no image needed for the bookkeeping).
 KeyFrame keyframeWith(int n) {
   KeyFrame kf;
+  kf.camera = std::make_shared<const PinholeCamera>(CameraParams());
   for (int i = 0; i < n; ++i) kf.features.keypoints.emplace_back(10.0f * i, 5.0f, 31.0f);
   kf.features.descriptors = cv::Mat(n, 32, CV_8U);
   cv::randu(kf.features.descriptors, 0, 256);

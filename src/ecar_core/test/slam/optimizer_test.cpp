@@ -393,8 +393,10 @@ struct BaScene {
 // keyframes at both ends of the path are fixed and exact: with the gauge fixed
 // at one end only, scale uncertainty grows along the path and the ML estimate
 // itself ends centimetres off at 1 px noise. Free keyframes are perturbed by
-// 5 cm / 0.5 deg, points by 5 cm per axis.
-BaScene makeBaScene(int num_keyframes, int num_points, double outlier_ratio, unsigned seed) {
+// 5 cm / 0.5 deg, points by 5 cm per axis. With `second_camera`, odd
+// keyframes see through it instead (devices with different cameras).
+BaScene makeBaScene(int num_keyframes, int num_points, double outlier_ratio, unsigned seed,
+                    const std::optional<Intrinsics>& second_camera = std::nullopt) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> noise(0.0, 1.0);
   std::uniform_real_distribution<double> pu(0.0, kWidth), pv(0.0, kHeight), depth(2.0, 6.0),
@@ -402,18 +404,19 @@ BaScene makeBaScene(int num_keyframes, int num_points, double outlier_ratio, uns
   std::uniform_int_distribution<int> keyframe(0, num_keyframes - 1);
   BaScene scene;
   BaProblem& truth = scene.truth;
-  truth.K = makeK();
   for (int k = 0; k < num_keyframes; ++k) {
     const Eigen::Vector3d eye(0.3 * k, 0.2 * std::sin(0.6 * k), 1.5 + 0.1 * std::cos(0.4 * k));
     const Eigen::Vector3d target = eye + Eigen::Vector3d(0.5 * std::sin(0.7 * k), 10.0, 0.0);
     BaProblem::KeyFrame kf;
     kf.T_c_w = lookAt(eye, target).inverse();
+    kf.K = second_camera && k % 2 == 1 ? *second_camera : makeK();
     kf.fixed = k == 0 || k == num_keyframes - 1;
     truth.keyframes.push_back(kf);
   }
-  const Intrinsics& K = truth.K;
   for (int p = 0; p < num_points; ++p) {
-    const SE3 T_w_c = truth.keyframes[keyframe(rng)].T_c_w.inverse();
+    const BaProblem::KeyFrame& seen_by = truth.keyframes[keyframe(rng)];
+    const Intrinsics& K = seen_by.K;
+    const SE3 T_w_c = seen_by.T_c_w.inverse();
     const Eigen::Vector3d ray((pu(rng) - K.cx) / K.fx, (pv(rng) - K.cy) / K.fy, 1.0);
     truth.points.push_back({T_w_c * (depth(rng) * ray)});
   }
@@ -421,7 +424,8 @@ BaScene makeBaScene(int num_keyframes, int num_points, double outlier_ratio, uns
     for (int k = 0; k < num_keyframes; ++k) {
       const Eigen::Vector3d p_c = truth.keyframes[k].T_c_w * truth.points[p].p_w;
       if (p_c.z() < 0.5) continue;
-      const Eigen::Vector2d uv = project(K, truth.keyframes[k].T_c_w, truth.points[p].p_w);
+      const Eigen::Vector2d uv =
+          project(truth.keyframes[k].K, truth.keyframes[k].T_c_w, truth.points[p].p_w);
       if (uv.x() < 0 || uv.y() < 0 || uv.x() >= kWidth || uv.y() >= kHeight) continue;
       BaProblem::Observation o;
       o.keyframe = k;
@@ -508,6 +512,33 @@ TEST(OptimizerTest, LocalBundleAdjustRecoversPosesAndFlagsOutliers) {
   EXPECT_EQ(ba.points[n - 2].p_w, scene.noisy.points[n - 2].p_w);
   EXPECT_EQ(ba.points[n - 1].p_w, scene.noisy.points[n - 1].p_w);
   EXPECT_TRUE(ba.observations.back().outlier);
+}
+
+// Devices with different cameras in one window: each keyframe's observations
+// are projected with its own intrinsics. Projected with one camera for all
+// (what a single-camera map did), the same problem ends far from the truth.
+TEST(OptimizerTest, LocalBundleAdjustKeyframesWithTheirOwnCameras) {
+  const Intrinsics wide{600.0, 600.0, 400.0, 300.0};  // an 800x600 phone
+  const BaScene scene = makeBaScene(10, 500, 0.0, 33, wide);
+  BaProblem ba = scene.noisy;
+  ASSERT_TRUE(localBundleAdjust(&ba).converged);
+  double max_error = 0.0;
+  for (size_t k = 0; k < ba.keyframes.size(); ++k) {
+    max_error =
+        std::max(max_error, positionError(ba.keyframes[k].T_c_w, scene.truth.keyframes[k].T_c_w));
+  }
+  EXPECT_LT(max_error, 0.01);
+  int flagged = 0;
+  for (const auto& o : ba.observations) flagged += o.outlier ? 1 : 0;
+  // About 5% of 1 px observations lie past chi2 95% (5.991).
+  EXPECT_LT(flagged, static_cast<int>(ba.observations.size()) * 8 / 100);
+
+  BaProblem one_camera = scene.noisy;
+  for (auto& kf : one_camera.keyframes) kf.K = makeK();
+  localBundleAdjust(&one_camera);
+  int one_camera_flagged = 0;
+  for (const auto& o : one_camera.observations) one_camera_flagged += o.outlier ? 1 : 0;
+  EXPECT_GT(one_camera_flagged, static_cast<int>(ba.observations.size()) / 5);
 }
 
 TEST(OptimizerTest, LocalBundleAdjustWithoutSecondPass) {
@@ -650,7 +681,6 @@ TEST(OptimizerTest, OptimizePoseDegenerateInputs) {
 TEST(OptimizerTest, LocalBundleAdjustDegenerateInputs) {
   // Empty problem.
   BaProblem empty;
-  empty.K = makeK();
   BaResult result = localBundleAdjust(&empty);
   EXPECT_FALSE(result.converged);
   EXPECT_EQ(result.num_outliers, 0);

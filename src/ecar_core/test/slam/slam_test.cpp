@@ -31,7 +31,8 @@ struct Upload {
 std::vector<Upload> renderUploads(const Scene& scene, const Renderer& renderer,
                                   const std::string& device, int every, int max_uploads,
                                   size_t first = 0) {
-  const auto motion = generateMotion(scene, scene.device(device), scene.camera.fps);
+  const DeviceSpec& spec = scene.device(device);
+  const auto motion = generateMotion(scene, spec, scene.cameraOf(spec).fps);
   std::vector<Upload> out;
   RenderOptions opt;
   opt.noise_sigma = static_cast<float>(scene.noise_sigma);
@@ -196,6 +197,64 @@ TEST(SlamTest, TwoDevicesEndInOneMap) {
   for (const auto& id : slam.map().keyframeIds()) has[slam.map().keyframe(id)->device.value] = true;
   EXPECT_TRUE(has[1]);
   EXPECT_TRUE(has[2]);
+}
+
+// Two phones with different cameras (640x480 pinhole; 800x600 with a wider
+// lens and radial-tangential distortion) in one map: each is tracked with its
+// own camera, its keyframes carry it, and points are triangulated, fused and
+// bundle-adjusted across keyframes of both cameras.
+TEST(SlamTest, DevicesWithTheirOwnCamerasShareOneMap) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const PinholeCamera phone(scene.cameraOf(scene.device("phone_800")));
+  ASSERT_EQ(phone.width(), 800);
+  ASSERT_TRUE(phone.hasDistortion());
+  const Renderer phone_renderer(scene, phone);
+  const auto a = renderUploads(scene, renderer, "device_0", 4, 40);
+  const auto b = renderUploads(scene, phone_renderer, "phone_800", 4, 40);
+  SlamSystem slam(renderer.camera());
+  slam.setCamera(DeviceId(2), phone);
+  std::vector<Eigen::Vector3d> est[2], gt[2], all_est, all_gt;
+  for (size_t i = 0; i < std::max(a.size(), b.size()); ++i) {
+    for (int d = 0; d < 2; ++d) {
+      const auto& ups = d == 0 ? a : b;
+      if (i >= ups.size()) continue;
+      const auto r = slam.track(DeviceId(d + 1), ups[i].image, ups[i].motion.timestamp,
+                                ups[i].frame, ups[i].motion.gravity_c);
+      if (r.state != TrackingState::kOk) continue;
+      est[d].push_back(r.T_w_c.translation());
+      gt[d].push_back(ups[i].motion.T_w_c.translation());
+      all_est.push_back(est[d].back());
+      all_gt.push_back(gt[d].back());
+    }
+  }
+  ASSERT_GE(est[0].size(), 25u);
+  ASSERT_GE(est[1].size(), 25u);
+  // One similarity for both devices; each device's error after it.
+  const Sim3 S = umeyama(all_est, all_gt, true);
+  for (int d = 0; d < 2; ++d) {
+    std::vector<double> e;
+    for (size_t i = 0; i < est[d].size(); ++i) e.push_back((S * est[d][i] - gt[d][i]).norm());
+    EXPECT_LT(computeStats(e).rmse, 0.03) << "device " << d + 1;
+  }
+  auto lock = slam.map().readLock();
+  const Map& map = slam.map();
+  int phone_keyframes = 0, shared_points = 0;
+  for (const KeyFrameId id : map.keyframeIds()) {
+    const KeyFrame* kf = map.keyframe(id);
+    EXPECT_EQ(kf->camera->width(), kf->device == DeviceId(2) ? 800 : 640) << "keyframe " << id;
+    phone_keyframes += kf->device == DeviceId(2) ? 1 : 0;
+  }
+  for (const MapPointId id : map.pointIds()) {
+    bool seen[2] = {false, false};
+    for (const auto& [kid, idx] : map.point(id)->observations) {
+      seen[map.keyframe(kid)->device == DeviceId(2) ? 1 : 0] = true;
+    }
+    shared_points += seen[0] && seen[1] ? 1 : 0;
+  }
+  EXPECT_GE(phone_keyframes, 3);
+  EXPECT_GE(shared_points, 100) << "points seen through both cameras";
+  EXPECT_EQ(map.checkConsistency(), "");
 }
 
 // Trackers of two devices on their own threads and the mapper on its thread,

@@ -18,6 +18,7 @@ namespace {
 // A keyframe with `n` keypoints and random descriptors.
 KeyFrame keyframeWith(int n, DeviceId device) {
   KeyFrame kf;
+  kf.camera = std::make_shared<const PinholeCamera>(CameraParams());
   kf.device = device;
   for (int i = 0; i < n; ++i) kf.features.keypoints.emplace_back(10.0f * i, 5.0f, 31.0f, 45.0f);
   kf.features.descriptors = cv::Mat(n, 32, CV_8U);

@@ -56,8 +56,8 @@ struct ServerConfig {
   int local_keyframes = 25;
   /// SLAM: gravity prior of local bundle adjustment, degrees (0: off).
   double gravity_sigma_deg = 0.3;
-  /// A device's intrinsics may differ from the SLAM camera's by this fraction
-  /// (fx, fy, cx, cy) and its distortion coefficients by this much.
+  /// Devices' cameras within this fraction (fx, fy, cx, cy; distortion
+  /// coefficients absolutely) count as one camera. Any camera may connect.
   double camera_tolerance = 0.005;
 
   /// Plane segmentation and merging (yaml section planes.*).
