@@ -3,7 +3,7 @@
 //   ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]
 //                     [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]
 //                     [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]
-//                     [--gravity-sigma DEG]
+//                     [--gravity-sigma DEG] [--odometry-sigma F]
 //
 // Every Nth frame of each dataset is (optionally) JPEG-compressed at quality Q,
 // decoded, and tracked; several datasets run interleaved by time into one map,
@@ -66,13 +66,14 @@ struct Args {
   bool sequential = false;
   int orb_features = 0;             // 0: the library default
   double gravity_sigma_deg = -1.0;  // < 0: the library default
+  double odometry_sigma = -1.0;     // < 0: the library default
 };
 
 void usage(std::ostream& os) {
   os << "usage: ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]\n"
         "         [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]\n"
         "         [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]\n"
-        "         [--gravity-sigma DEG]\n"
+        "         [--gravity-sigma DEG] [--odometry-sigma F]\n"
         "  --every N         track every Nth frame (the server sees every 4th)\n"
         "  --jpeg-quality Q  JPEG-compress each image at quality Q (1-100) first\n"
         "  --frames N        only the first N frames of each dataset\n"
@@ -83,7 +84,9 @@ void usage(std::ostream& os) {
         "  --verbose         one line per upload (state, tracked points, why it failed)\n"
         "  --sequential      run the datasets one after another (later ones join the map)\n"
         "  --orb-features N  ORB keypoints per image (default 1000; large images want more)\n"
-        "  --gravity-sigma D gravity prior of local BA, degrees (0: off; default 0.3)\n";
+        "  --gravity-sigma D gravity prior of local BA, degrees (0: off; default 0.3)\n"
+        "  --odometry-sigma F odometry edges of local BA in metric maps, sigma as a fraction\n"
+        "                    of the distance (0: off; default 0.02)\n";
 }
 
 Args parse(int argc, char** argv) {
@@ -141,6 +144,14 @@ Args parse(int argc, char** argv) {
       if (end == v.c_str() || *end != '\0' || !(a.gravity_sigma_deg >= 0.0) ||
           a.gravity_sigma_deg > 90.0) {
         throw ecar::Error("option --gravity-sigma needs degrees in [0, 90] (got '" + v + "')");
+      }
+    } else if (k == "--odometry-sigma") {
+      const std::string v = value();
+      char* end = nullptr;
+      a.odometry_sigma = std::strtod(v.c_str(), &end);
+      if (end == v.c_str() || *end != '\0' ||
+          !(a.odometry_sigma >= 0.0 && a.odometry_sigma <= 1.0)) {
+        throw ecar::Error("option --odometry-sigma needs a fraction in [0, 1] (got '" + v + "')");
       }
     } else if (k == "--help" || k == "-h") {
       usage(std::cout);
@@ -277,6 +288,7 @@ int run(const Args& args) {
   config.synchronous_mapping = !args.threads;
   if (args.orb_features > 0) config.orb.num_features = args.orb_features;
   if (args.gravity_sigma_deg >= 0.0) config.ba.gravity_sigma_deg = args.gravity_sigma_deg;
+  if (args.odometry_sigma >= 0.0) config.odometry_sigma_fraction = args.odometry_sigma;
   // Each device with its own camera (its dataset's camera.yaml).
   ecar::SlamSystem slam(runs.front().dataset.camera(), config);
   for (size_t d = 0; d < runs.size(); ++d) {
@@ -432,6 +444,7 @@ int run(const Args& args) {
          {"uploads", r.uploads.size()},
          {"tracked", r.tracked},
          {"init_upload", r.init_upload},
+         {"first_tracked_upload", r.init_upload >= 0 ? r.init_upload : r.joined_upload},
          {"init_frame", r.init_upload >= 0 ? static_cast<int>(r.uploads[r.init_upload]) : -1},
          {"joined_upload", r.joined_upload},
          {"first_overlap_upload", r.first_overlap_upload},
@@ -452,6 +465,22 @@ int run(const Args& args) {
       "ATE (%s, one transform for all devices): rmse %.4f m, median %.4f m, max %.4f m, scale "
       "%.4f\n",
       metric ? "SE(3)" : "Sim(3)", overall.rmse, overall.median, overall.max, S.scale);
+  // Beside a metric ATE, the similarity fit: its scale is the map's scale
+  // error (ground-truth metres per map metre).
+  ecar::ErrorStats overall_sim3 = overall;
+  ecar::Sim3 S_sim3 = S;
+  if (have_ate && metric) {
+    S_sim3 = ecar::umeyama(est_all, gt_all, true);
+    std::vector<double> e;
+    for (size_t i = 0; i < est_all.size(); ++i)
+      e.push_back((S_sim3 * est_all[i] - gt_all[i]).norm());
+    overall_sim3 = ecar::computeStats(e);
+    std::printf("ATE (Sim(3)): rmse %.4f m; map scale error %+.2f%% (ground truth / map)\n",
+                overall_sim3.rmse, 100.0 * (S_sim3.scale - 1.0));
+  }
+  summary["ate_sim3"] = ecar::toJson(overall_sim3);
+  summary["scale_sim3"] = S_sim3.scale;
+  summary["odometry_sigma_fraction"] = config.odometry_sigma_fraction;
   const ecar::ErrorStats rotation = ecar::computeStats(rotationSpreadDeg(map_to_world));
   const ecar::ErrorStats tilt = ecar::computeStats(all_tilt);
   std::printf(

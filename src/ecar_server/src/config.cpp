@@ -44,6 +44,12 @@ void ServerConfig::validate() const {
   if (!(gravity_sigma_deg >= 0.0) || gravity_sigma_deg > 90.0) {
     fail("gravity_sigma_deg", "must be in [0, 90] degrees");
   }
+  if (!(odometry_sigma_fraction >= 0.0 && odometry_sigma_fraction <= 1.0)) {
+    fail("odometry_sigma_fraction", "must be in [0, 1]");
+  }
+  if (!(odometry_sigma_min > 0.0 && odometry_sigma_min <= 1.0)) {
+    fail("odometry_sigma_min", "must be in (0, 1] m");
+  }
   if (!(camera_tolerance >= 0.0 && camera_tolerance < 1.0)) {
     fail("camera_tolerance", "must be in [0, 1)");
   }
@@ -77,6 +83,8 @@ ecar::SlamConfig ServerConfig::slamConfig() const {
   c.orb.num_features = orb_features;
   c.local_keyframes = local_keyframes;
   c.ba.gravity_sigma_deg = gravity_sigma_deg;
+  c.odometry_sigma_fraction = odometry_sigma_fraction;
+  c.odometry_sigma_min = odometry_sigma_min;
   c.synchronous_mapping = false;
   return c;
 }

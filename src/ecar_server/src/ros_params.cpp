@@ -50,6 +50,8 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("orb_features", &c.orb_features);
   r.read("local_keyframes", &c.local_keyframes);
   r.read("gravity_sigma_deg", &c.gravity_sigma_deg);
+  r.read("odometry_sigma_fraction", &c.odometry_sigma_fraction);
+  r.read("odometry_sigma_min", &c.odometry_sigma_min);
   r.read("camera_tolerance", &c.camera_tolerance);
   r.read("map_file", &c.map_file);
   c.map_file = expandHome(c.map_file);

@@ -27,7 +27,8 @@ constexpr size_t kObservationBytes = 8;   // keyframe id, keypoint index
 //   u32 version; u32 camera count (the first is the SLAM system's default),
 //   each camera: i32 width, i32 height, f64 fx, fy, cx, cy, f64 x5
 //   distortion; u32 pyramid levels, f32 scale per level;
-//   u32 epoch, u32 next keyframe id, u32 next point id;
+//   u32 epoch, u32 next keyframe id, u32 next point id, u8 metric (1: in
+//   metres from odometry);
 //   u32 keyframe count, each: u32 id, u32 device, u32 frame index,
 //     f64 timestamp, se3 T_c_w, u32 camera index, u8 flags (1 bad, 2 gravity,
 //     4 odometry),
@@ -73,6 +74,7 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& default_
   out.u32(map.epoch());
   out.u32(map.nextKeyFrameId().value);
   out.u32(map.nextPointId().value);
+  out.u8(map.metric() ? 1 : 0);
 
   out.u32(static_cast<uint32_t>(keyframes.size()));
   for (const KeyFrameId id : keyframes) {
@@ -214,6 +216,12 @@ std::unique_ptr<Map> decodeSlamMap(ByteReader in, const ScaleInfo& scale) {
   const uint32_t epoch = in.u32("epoch");
   const KeyFrameId next_keyframe(in.u32("next keyframe id"));
   const MapPointId next_point(in.u32("next point id"));
+  bool metric = false;
+  if (version >= 2) {
+    const uint8_t m = in.u8("metric");
+    if (m > 1) in.fail("metric", "not 0 or 1");
+    metric = m == 1;
+  }
 
   auto map = std::make_unique<Map>(scale);
   const uint32_t num_keyframes =
@@ -335,6 +343,7 @@ std::unique_ptr<Map> decodeSlamMap(ByteReader in, const ScaleInfo& scale) {
   in.setScope("");
   in.expectEnd();
   map->setCounters(next_keyframe, next_point, epoch);
+  map->setMetric(metric);
   for (const KeyFrameId id : map->keyframeIds()) map->updateCovisibility(id);
   const std::string problem = map->checkConsistency();
   if (!problem.empty()) in.fail("map", "inconsistent map: " + problem);

@@ -340,6 +340,42 @@ int LocalMapper::fuseInto(KeyFrameId target, const std::vector<MapPointId>& poin
   return fused;
 }
 
+void LocalMapper::addOdometryEdges(const std::vector<KeyFrameId>& ids, BaProblem* problem) const {
+  if (!(config_.odometry_sigma_fraction > 0.0)) return;
+  // Each device's keyframes in the window with odometry, in time order; an
+  // edge between consecutive ones.
+  struct Stamped {
+    double timestamp;
+    int index;
+    const KeyFrame* kf;
+  };
+  std::unordered_map<DeviceId, std::vector<Stamped>> by_device;
+  for (size_t i = 0; i < ids.size(); ++i) {
+    const KeyFrame* k = map_->keyframe(ids[i]);
+    if (k && k->features.T_o_c) {
+      by_device[k->device].push_back({k->timestamp, static_cast<int>(i), k});
+    }
+  }
+  for (auto& [device, list] : by_device) {
+    std::sort(list.begin(), list.end(),
+              [](const Stamped& a, const Stamped& b) { return a.timestamp < b.timestamp; });
+    for (size_t i = 1; i < list.size(); ++i) {
+      const Stamped& a = list[i - 1];
+      const Stamped& b = list[i];
+      if (b.timestamp - a.timestamp > config_.odometry_max_gap) continue;
+      const SE3& T_o_a = *a.kf->features.T_o_c;
+      const SE3& T_o_b = *b.kf->features.T_o_c;
+      BaProblem::OdometryEdge edge;
+      edge.from = a.index;
+      edge.to = b.index;
+      edge.t_from_to = T_o_a.linear().transpose() * (T_o_b.translation() - T_o_a.translation());
+      edge.sigma =
+          config_.odometry_sigma_min + config_.odometry_sigma_fraction * edge.t_from_to.norm();
+      problem->odometry.push_back(edge);
+    }
+  }
+}
+
 void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
   const auto t0 = std::chrono::steady_clock::now();
   BaProblem problem;
@@ -401,6 +437,7 @@ void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
       }
       problem.keyframes[oldest].fixed = true;
     }
+    if (map_->metric()) addOdometryEdges(kf_ids, &problem);
   }
   if (problem.observations.empty()) return;
   localBundleAdjust(&problem, config_.ba);

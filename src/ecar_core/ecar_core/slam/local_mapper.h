@@ -66,6 +66,9 @@ class LocalMapper {
   int fuseDuplicates(KeyFrameId kf);
   int fuseInto(KeyFrameId target, const std::vector<MapPointId>& points);  // write lock held
   void localBundleAdjustment(KeyFrameId kf);
+  /// Odometry edges between consecutive keyframes of each device among `ids`
+  /// (the window's keyframes, indexed as in problem->keyframes). Read lock held.
+  void addOdometryEdges(const std::vector<KeyFrameId>& ids, BaProblem* problem) const;
   void cullKeyFrames(KeyFrameId kf);
   void run();
 

@@ -352,12 +352,14 @@ void Map::replaceWith(Map&& other) {
   other.points_.clear();
   next_keyframe_ = other.next_keyframe_;
   next_point_ = other.next_point_;
+  metric_ = other.metric_;
   epoch_ = std::max(epoch_, other.epoch_) + 1;
 }
 
 void Map::clear() {
   keyframes_.clear();
   points_.clear();
+  metric_ = false;
   ++epoch_;
 }
 

@@ -97,6 +97,9 @@ class Map {
   /// Epoch of the map: changes on reset/load (devices drop what they hold).
   uint32_t epoch() const { return epoch_; }
   bool initialized() const { return !keyframes_.empty(); }
+  /// Metric: initialised with odometry (metres); otherwise scaled by the
+  /// first views' median depth.
+  bool metric() const { return metric_; }
   /// Checks the map's invariants: every observation is recorded on both sides
   /// (point -> keyframe keypoint and back), and ids refer to live entries.
   /// Returns the first violation found, empty when consistent.
@@ -104,6 +107,7 @@ class Map {
 
   // ---- write access (hold writeLock)
   KeyFrame* mutableKeyFrame(KeyFrameId id);
+  void setMetric(bool metric) { metric_ = metric; }
   MapPoint* mutablePoint(MapPointId id);
   /// Assigns the id. Throws ecar::Error when the keyframe has no camera.
   KeyFrameId addKeyFrame(KeyFrame kf);
@@ -150,6 +154,7 @@ class Map {
   std::unordered_map<MapPointId, MapPoint> points_;
   uint32_t next_keyframe_ = 1, next_point_ = 1;
   uint32_t epoch_ = 1;
+  bool metric_ = false;
 };
 
 }  // namespace ecar

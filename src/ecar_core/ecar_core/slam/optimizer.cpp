@@ -216,6 +216,28 @@ ceres::CostFunction* PoseOnlyReprojectionError::Create(const Eigen::Vector3d& p_
   return new AnalyticPoseOnlyReprojectionError(PoseOnlyReprojectionError(p_w, uv, sqrt_info, K));
 }
 
+template <typename T>
+bool OdometryTranslationError::operator()(const T* from, const T* to, T* residual) const {
+  // Centre of `to`: -R_to^T t_to (rotation by the negated angle-axis).
+  const T minus_t[3] = {-to[3], -to[4], -to[5]};
+  const T inverse_rotation[3] = {-to[0], -to[1], -to[2]};
+  T centre[3];
+  ceres::AngleAxisRotatePoint(inverse_rotation, minus_t, centre);
+  T in_from[3];
+  ceres::AngleAxisRotatePoint(from, centre, in_from);
+  for (int i = 0; i < 3; ++i) residual[i] = (in_from[i] + from[3 + i] - t_[i]) * inv_sigma_;
+  return true;
+}
+
+template bool OdometryTranslationError::operator()<double>(const double*, const double*,
+                                                           double*) const;
+
+ceres::CostFunction* OdometryTranslationError::Create(const Eigen::Vector3d& t_from_to,
+                                                      double sigma) {
+  return new ceres::AutoDiffCostFunction<OdometryTranslationError, 3, 6, 6>(
+      new OdometryTranslationError(t_from_to, sigma));
+}
+
 void poseToParams(const SE3& T, double* params6) {
   const Eigen::AngleAxisd aa(T.linear());  // identity: angle 0, any axis
   Eigen::Map<Eigen::Vector3d> w(params6), t(params6 + 3);
@@ -352,7 +374,8 @@ class LocalBa {
   std::vector<std::array<double, 3>> points_, points0_;
   std::vector<std::unique_ptr<ceres::CostFunction>> costs_;  // null: unusable observation
   std::vector<bool> active_;
-  std::vector<std::unique_ptr<ceres::CostFunction>> gravity_;  // per keyframe, null: no prior
+  std::vector<std::unique_ptr<ceres::CostFunction>> gravity_;   // per keyframe, null: no prior
+  std::vector<std::unique_ptr<ceres::CostFunction>> odometry_;  // per edge, null: unusable
 };
 
 BaResult LocalBa::run() {
@@ -408,6 +431,20 @@ BaResult LocalBa::run() {
       }
       gravity_[k].reset(GravityPriorError::Create(*up, sigma_rad));
     }
+  }
+  // Odometry edges between usable poses, at least one of them free.
+  odometry_.resize(ba_.odometry.size());
+  for (size_t e = 0; e < ba_.odometry.size(); ++e) {
+    const BaProblem::OdometryEdge& edge = ba_.odometry[e];
+    if (edge.from < 0 || edge.from >= nk || edge.to < 0 || edge.to >= nk || edge.from == edge.to) {
+      continue;
+    }
+    if (!pose_ok[edge.from] || !pose_ok[edge.to] || !edge.t_from_to.allFinite() ||
+        !(edge.sigma > 0.0) || !std::isfinite(edge.sigma)) {
+      continue;
+    }
+    if (ba_.keyframes[edge.from].fixed && ba_.keyframes[edge.to].fixed) continue;
+    odometry_[e].reset(OdometryTranslationError::Create(edge.t_from_to, edge.sigma));
   }
 
   bool usable = solve(true, config_.iterations_first);
@@ -476,6 +513,14 @@ bool LocalBa::solve(bool robust, int iterations) {
   for (size_t k = 0; k < gravity_.size(); ++k) {
     if (gravity_[k] && in_problem_kf[k]) {
       problem.AddResidualBlock(gravity_[k].get(), &gravity_huber, poses_[k].data());
+    }
+  }
+  ceres::HuberLoss odometry_huber(config_.odometry_huber);
+  for (size_t e = 0; e < odometry_.size(); ++e) {
+    const BaProblem::OdometryEdge& edge = ba_.odometry[e];
+    if (odometry_[e] && in_problem_kf[edge.from] && in_problem_kf[edge.to]) {
+      problem.AddResidualBlock(odometry_[e].get(), &odometry_huber, poses_[edge.from].data(),
+                               poses_[edge.to].data());
     }
   }
 

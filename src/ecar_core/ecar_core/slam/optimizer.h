@@ -68,9 +68,18 @@ struct BaProblem {
     double inv_sigma2 = 1.0;
     bool outlier = false;  ///< set by localBundleAdjust
   };
+  /// A device's odometry between two of its keyframes: where keyframe `to`'s
+  /// camera centre lies in keyframe `from`'s camera frame (metres). Only in a
+  /// metric map; it holds the map's scale to the devices' odometry.
+  struct OdometryEdge {
+    int from = 0, to = 0;  ///< indices into keyframes
+    Eigen::Vector3d t_from_to = Eigen::Vector3d::Zero();
+    double sigma = 0.01;  ///< m, standard deviation of the measurement
+  };
   std::vector<KeyFrame> keyframes;
   std::vector<Point> points;
   std::vector<Observation> observations;
+  std::vector<OdometryEdge> odometry;
 };
 
 struct BaConfig {
@@ -88,6 +97,9 @@ struct BaConfig {
   /// Huber threshold of the gravity residual in sigmas: a reading disturbed by
   /// the device's acceleration pulls no harder than this.
   double gravity_huber = 3.0;
+  /// Huber threshold of the odometry residuals in sigmas (a slipping odometry
+  /// pulls no harder than this).
+  double odometry_huber = 3.0;
 };
 
 struct BaResult {
@@ -133,6 +145,19 @@ struct PoseOnlyReprojectionError {
   Eigen::Vector2d uv_;
   double sqrt_info_;
   Intrinsics K_;
+};
+
+/// Odometry between two poses [aa, t] (T_c_w): 3 residuals,
+/// (T_from_w * centre(to) - t_from_to) / sigma.
+struct OdometryTranslationError {
+  OdometryTranslationError(const Eigen::Vector3d& t_from_to, double sigma)
+      : t_(t_from_to), inv_sigma_(1.0 / sigma) {}
+  template <typename T>
+  bool operator()(const T* from, const T* to, T* residual) const;
+  /// Autodiff cost function on two blocks (poses [6]); ownership passes to the caller.
+  static ceres::CostFunction* Create(const Eigen::Vector3d& t_from_to, double sigma);
+  Eigen::Vector3d t_;
+  double inv_sigma_;
 };
 
 /// Gravity prior on a free pose [aa, t] (T_c_w): 3 residuals,

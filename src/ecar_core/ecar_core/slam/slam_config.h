@@ -51,7 +51,17 @@ struct SlamConfig {
   /// A relocalised pose must agree with the upload's gravity within this
   /// (degrees) where the map is gravity-aligned.
   double gravity_tolerance_deg = 5.0;
-  bool synchronous_mapping = true;  ///< map each keyframe inside track()
+  /// Odometry in local bundle adjustment (metric maps only): consecutive
+  /// keyframes of one device with odometry at most `odometry_max_gap` s
+  /// apart are tied by the odometry's relative translation, with standard
+  /// deviation odometry_sigma_min + odometry_sigma_fraction * distance. This
+  /// keeps the map's scale to all devices' odometry over time (monocular
+  /// scale drifts; the first baseline alone sets it to about 1%).
+  /// odometry_sigma_fraction 0 disables it.
+  double odometry_sigma_fraction = 0.02;
+  double odometry_sigma_min = 0.01;  ///< m
+  double odometry_max_gap = 10.0;    ///< s
+  bool synchronous_mapping = true;   ///< map each keyframe inside track()
   /// Epoch of the first map (Map::epoch); a server makes it differ between
   /// its starts so that devices notice a restarted server. >= 1.
   uint32_t first_epoch = 1;

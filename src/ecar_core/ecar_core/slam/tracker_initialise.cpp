@@ -133,10 +133,12 @@ bool Tracker::initialise(TrackResult* result) {
   const TwoViewResult& tv = *chosen;
   // Scale: metric from odometry when both views have it, else median depth 1.
   double scale = 1.0;
+  bool metric = false;
   if (init_frame.T_o_c && current_.T_o_c) {
     const double baseline =
         (current_.T_o_c->translation() - init_frame.T_o_c->translation()).norm();
     if (baseline > 1e-3) scale = baseline / tv.T_c2_c1.translation().norm();
+    metric = baseline > 1e-3;
   } else {
     std::vector<double> depths;
     for (size_t k = 0; k < tv.valid.size(); ++k) {
@@ -164,6 +166,7 @@ bool Tracker::initialise(TrackResult* result) {
   kf2.timestamp = current_.timestamp;
   kf2.T_c_w = T_c2_w;
   kf2.features = current_;
+  map_->setMetric(metric);
   const KeyFrameId id1 = map_->addKeyFrame(std::move(kf1));
   const KeyFrameId id2 = map_->addKeyFrame(std::move(kf2));
   matches_.assign(current_.size(), MapPointId());

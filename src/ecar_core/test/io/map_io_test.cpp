@@ -447,10 +447,10 @@ TEST(MapIoSlamTest, EachKeyFrameKeepsItsCamera) {
             "");
 
   // The first keyframe's camera index (after version, camera count, the two
-  // cameras, pyramid, epoch and counters, keyframe count, id, device, frame,
+  // cameras, pyramid, epoch, counters and metric flag, keyframe count, id, device, frame,
   // timestamp and pose) set past the list.
   std::vector<uint8_t> bad = bytes;
-  const size_t index_at = 4 + 4 + 2 * 80 + 4 + 4 * scale.levels() + 12 + 4 + 12 + 8 + 96;
+  const size_t index_at = 4 + 4 + 2 * 80 + 4 + 4 * scale.levels() + 12 + 1 + 4 + 12 + 8 + 96;
   bad[index_at] = 9;
   const std::string e =
       errorOf([&] { decodeSlamMap(ByteReader(bad.data(), bad.size(), "slam"), scale); });

@@ -1,6 +1,7 @@
 #include "ecar_core/slam/optimizer.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -539,6 +540,66 @@ TEST(OptimizerTest, LocalBundleAdjustKeyframesWithTheirOwnCameras) {
   int one_camera_flagged = 0;
   for (const auto& o : one_camera.observations) one_camera_flagged += o.outlier ? 1 : 0;
   EXPECT_GT(one_camera_flagged, static_cast<int>(ba.observations.size()) / 5);
+}
+
+// Monocular scale is free: a window whose only fixed keyframe is the first
+// one keeps whatever scale it starts with. Odometry edges between consecutive
+// keyframes (1% noise) bring a map 5% too large back to metres.
+TEST(OptimizerTest, OdometryEdgesHoldTheMapsScale) {
+  const BaScene scene = makeBaScene(10, 400, 0.0, 41);
+  const Eigen::Vector3d c0 = scene.truth.keyframes[0].T_c_w.inverse().translation();
+  const double wrong = 1.05;
+  BaProblem start =
+      scene.truth;  // exact observations of the true map, scaled: zero reprojection error
+  for (size_t k = 0; k < start.keyframes.size(); ++k) {
+    BaProblem::KeyFrame& kf = start.keyframes[k];
+    kf.fixed = k == 0;
+    const Eigen::Vector3d c = c0 + wrong * (kf.T_c_w.inverse().translation() - c0);
+    kf.T_c_w.translation() = -(kf.T_c_w.linear() * c);
+  }
+  for (auto& p : start.points) p.p_w = c0 + wrong * (p.p_w - c0);
+  const auto centre = [](const BaProblem& ba, size_t k) -> Eigen::Vector3d {
+    return ba.keyframes[k].T_c_w.inverse().translation();
+  };
+  // Scale of a solution: its path length over the true one.
+  const auto scale_of = [&](const BaProblem& ba) {
+    double est = 0.0, truth = 0.0;
+    for (size_t k = 1; k < ba.keyframes.size(); ++k) {
+      est += (centre(ba, k) - centre(ba, k - 1)).norm();
+      truth += (centre(scene.truth, k) - centre(scene.truth, k - 1)).norm();
+    }
+    return est / truth;
+  };
+  BaProblem without = start;
+  ASSERT_TRUE(localBundleAdjust(&without).converged);
+  EXPECT_NEAR(scale_of(without), wrong, 0.005);  // nothing in the images says otherwise
+
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  BaProblem with = start;
+  for (size_t k = 1; k < with.keyframes.size(); ++k) {
+    BaProblem::OdometryEdge e;
+    e.from = static_cast<int>(k - 1);
+    e.to = static_cast<int>(k);
+    const Eigen::Vector3d t = scene.truth.keyframes[k - 1].T_c_w * centre(scene.truth, k);
+    e.t_from_to = t * (1.0 + noise(rng));
+    e.sigma = 0.002 + 0.02 * t.norm();
+    with.odometry.push_back(e);
+  }
+  BaConfig config;
+  config.iterations_second = 30;
+  ASSERT_TRUE(localBundleAdjust(&with, config).converged);
+  EXPECT_NEAR(scale_of(with), 1.0, 0.01);
+  // The residual is zero at the truth and 1/sigma per metre off.
+  double residual[3];
+  std::array<double, 6> a, b;
+  poseToParams(scene.truth.keyframes[0].T_c_w, a.data());
+  poseToParams(scene.truth.keyframes[1].T_c_w, b.data());
+  const Eigen::Vector3d t01 = scene.truth.keyframes[0].T_c_w * centre(scene.truth, 1);
+  OdometryTranslationError(t01, 0.5)(a.data(), b.data(), residual);
+  EXPECT_LT(Eigen::Map<Eigen::Vector3d>(residual).norm(), 1e-9);
+  OdometryTranslationError(t01 + Eigen::Vector3d(0.1, 0, 0), 0.5)(a.data(), b.data(), residual);
+  EXPECT_NEAR(residual[0], -0.2, 1e-9);
 }
 
 TEST(OptimizerTest, LocalBundleAdjustWithoutSecondPass) {

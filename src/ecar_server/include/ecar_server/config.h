@@ -56,6 +56,10 @@ struct ServerConfig {
   int local_keyframes = 25;
   /// SLAM: gravity prior of local bundle adjustment, degrees (0: off).
   double gravity_sigma_deg = 0.3;
+  /// SLAM: odometry edges of local BA in metric maps, sigma = min + fraction *
+  /// distance between consecutive keyframes of a device (fraction 0: off).
+  double odometry_sigma_fraction = 0.02;
+  double odometry_sigma_min = 0.01;  ///< m
   /// Devices' cameras within this fraction (fx, fy, cx, cy; distortion
   /// coefficients absolutely) count as one camera. Any camera may connect.
   double camera_tolerance = 0.005;
