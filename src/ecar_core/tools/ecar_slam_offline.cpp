@@ -3,7 +3,7 @@
 //   ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]
 //                     [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]
 //                     [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]
-//                     [--gravity-sigma DEG] [--odometry-sigma F]
+//                     [--gravity-sigma DEG] [--odometry-sigma F] [--no-loops]
 //
 // Every Nth frame of each dataset is (optionally) JPEG-compressed at quality Q,
 // decoded, and tracked; several datasets run interleaved by time into one map,
@@ -62,6 +62,7 @@ struct Args {
   std::string out, summary;
   bool use_odometry = true;
   bool threads = false;
+  bool loops = true;
   bool verbose = false;
   bool sequential = false;
   int orb_features = 0;             // 0: the library default
@@ -73,7 +74,7 @@ void usage(std::ostream& os) {
   os << "usage: ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]\n"
         "         [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]\n"
         "         [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]\n"
-        "         [--gravity-sigma DEG] [--odometry-sigma F]\n"
+        "         [--gravity-sigma DEG] [--odometry-sigma F] [--no-loops]\n"
         "  --every N         track every Nth frame (the server sees every 4th)\n"
         "  --jpeg-quality Q  JPEG-compress each image at quality Q (1-100) first\n"
         "  --frames N        only the first N frames of each dataset\n"
@@ -85,6 +86,7 @@ void usage(std::ostream& os) {
         "  --sequential      run the datasets one after another (later ones join the map)\n"
         "  --orb-features N  ORB keypoints per image (default 1000; large images want more)\n"
         "  --gravity-sigma D gravity prior of local BA, degrees (0: off; default 0.3)\n"
+        "  --no-loops        no loop closing (the figure without closing, beside it)\n"
         "  --odometry-sigma F odometry edges of local BA in metric maps, sigma as a fraction\n"
         "                    of the distance (0: off; default 0.02)\n";
 }
@@ -129,6 +131,8 @@ Args parse(int argc, char** argv) {
       a.summary = value();
     } else if (k == "--no-odometry") {
       a.use_odometry = false;
+    } else if (k == "--no-loops") {
+      a.loops = false;
     } else if (k == "--threads") {
       a.threads = true;
     } else if (k == "--verbose") {
@@ -289,6 +293,7 @@ int run(const Args& args) {
   if (args.orb_features > 0) config.orb.num_features = args.orb_features;
   if (args.gravity_sigma_deg >= 0.0) config.ba.gravity_sigma_deg = args.gravity_sigma_deg;
   if (args.odometry_sigma >= 0.0) config.odometry_sigma_fraction = args.odometry_sigma;
+  config.loops.enabled = args.loops;
   // Each device with its own camera (its dataset's camera.yaml).
   ecar::SlamSystem slam(runs.front().dataset.camera(), config);
   for (size_t d = 0; d < runs.size(); ++d) {
@@ -367,6 +372,8 @@ int run(const Args& args) {
   std::fprintf(stderr, "\n");
   slam.mapper().stopThread();
   slam.mapper().processPending();
+  slam.loopCloser().stopThread();
+  slam.loopCloser().processPending();
   const double wall_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
 
@@ -479,6 +486,43 @@ int run(const Args& args) {
                 overall_sim3.rmse, 100.0 * (S_sim3.scale - 1.0));
   }
   summary["ate_sim3"] = ecar::toJson(overall_sim3);
+  // The map at the end: its keyframes (after every loop correction and global
+  // BA) against the ground truth of their frames, one transform.
+  {
+    std::vector<Eigen::Vector3d> est, gt;
+    {
+      auto lock = slam.map().readLock();
+      for (const ecar::KeyFrameId id : slam.map().keyframeIds()) {
+        const ecar::KeyFrame* kf = slam.map().keyframe(id);
+        const size_t d = kf->device.value - 1;
+        if (d >= runs.size() || kf->frame_index >= runs[d].dataset.size()) continue;
+        const auto& truth = runs[d].dataset.frame(kf->frame_index).T_w_c_gt;
+        if (!truth) continue;
+        est.push_back(kf->center());
+        gt.push_back(truth->translation());
+      }
+    }
+    if (est.size() >= 3) {
+      const ecar::Sim3 K = ecar::umeyama(est, gt, !metric);
+      std::vector<double> e;
+      for (size_t i = 0; i < est.size(); ++i) e.push_back((K * est[i] - gt[i]).norm());
+      const ecar::ErrorStats st = ecar::computeStats(e);
+      std::printf("keyframes at the end (%zu): ATE (%s) rmse %.4f m, max %.4f m\n", est.size(),
+                  metric ? "SE(3)" : "Sim(3)", st.rmse, st.max);
+      summary["ate_keyframes"] = ecar::toJson(st);
+      if (metric) {
+        const ecar::Sim3 K3 = ecar::umeyama(est, gt, true);
+        std::vector<double> e3;
+        for (size_t i = 0; i < est.size(); ++i) e3.push_back((K3 * est[i] - gt[i]).norm());
+        const ecar::ErrorStats st3 = ecar::computeStats(e3);
+        std::printf(
+            "keyframes at the end: ATE (Sim(3)) rmse %.4f m, max %.4f m; scale error %+.2f%%\n",
+            st3.rmse, st3.max, 100.0 * (K3.scale - 1.0));
+        summary["ate_keyframes_sim3"] = ecar::toJson(st3);
+        summary["scale_keyframes_sim3"] = K3.scale;
+      }
+    }
+  }
   summary["scale_sim3"] = S_sim3.scale;
   summary["odometry_sigma_fraction"] = config.odometry_sigma_fraction;
   const ecar::ErrorStats rotation = ecar::computeStats(rotationSpreadDeg(map_to_world));
@@ -504,6 +548,44 @@ int run(const Args& args) {
       {"tracking_median", percentile(track_ms, 0.5)}, {"tracking_p95", percentile(track_ms, 0.95)},
       {"local_ba_median", percentile(ba, 0.5)},       {"local_ba_p95", percentile(ba, 0.95)}};
   summary["wall_s"] = wall_s;
+  // Loops closed: at which upload of which device, with how many inliers, and
+  // what it cost (detection, pose graph and correction, global BA).
+  summary["maps"] = 1;
+  summary["merges"] = nlohmann::json::array();
+  summary["loop_closures"] = nlohmann::json::array();
+  for (const ecar::LoopClosure& l : slam.loopCloser().closures()) {
+    int upload = -1;
+    const size_t d = l.device.value - 1;
+    uint32_t frame = 0;
+    {
+      auto lock = slam.map().readLock();
+      // The keyframe may be culled by now; its frame index was recorded by the device run.
+      if (const ecar::KeyFrame* kf = slam.map().keyframe(l.query)) frame = kf->frame_index;
+    }
+    if (d < runs.size()) {
+      const auto& ups = runs[d].uploads;
+      const auto it = std::find(ups.begin(), ups.end(), frame);
+      if (it != ups.end()) upload = static_cast<int>(it - ups.begin());
+    }
+    std::printf(
+        "loop closed: %s upload %d (keyframe %u) with keyframe %u, %d inliers, similarity scale "
+        "%.4f, the keyframe moved %.3f m; detect %.1f ms, correct %.1f ms (%zu keyframes, %zu "
+        "points moved, %zu fused), global BA %.1f ms\n",
+        d < runs.size() ? runs[d].name.c_str() : "?", upload, l.query.value, l.match.value,
+        l.inliers, l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.keyframes_moved, l.points_moved,
+        l.points_fused, l.global_ba_ms);
+    summary["loop_closures"].push_back({{"upload", upload},
+                                        {"device", d < runs.size() ? runs[d].name : "?"},
+                                        {"keyframe", l.query.value},
+                                        {"match", l.match.value},
+                                        {"inliers", l.inliers},
+                                        {"scale", l.scale},
+                                        {"moved_m", l.drift_m},
+                                        {"ms", l.detect_ms + l.correct_ms},
+                                        {"detect_ms", l.detect_ms},
+                                        {"correct_ms", l.correct_ms},
+                                        {"global_ba_ms", l.global_ba_ms}});
+  }
   if (!args.summary.empty()) {
     std::ofstream out(args.summary);
     out << summary.dump(2) << "\n";

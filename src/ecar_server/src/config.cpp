@@ -50,6 +50,9 @@ void ServerConfig::validate() const {
   if (!(odometry_sigma_min > 0.0 && odometry_sigma_min <= 1.0)) {
     fail("odometry_sigma_min", "must be in (0, 1] m");
   }
+  if (loop_min_inliers < 10 || loop_min_inliers > 10000) {
+    fail("loop_min_inliers", "must be in [10, 10000]");
+  }
   if (!(camera_tolerance >= 0.0 && camera_tolerance < 1.0)) {
     fail("camera_tolerance", "must be in [0, 1)");
   }
@@ -85,6 +88,9 @@ ecar::SlamConfig ServerConfig::slamConfig() const {
   c.ba.gravity_sigma_deg = gravity_sigma_deg;
   c.odometry_sigma_fraction = odometry_sigma_fraction;
   c.odometry_sigma_min = odometry_sigma_min;
+  c.loops.enabled = loop_closing;
+  c.loops.min_inliers = loop_min_inliers;
+  c.loops.global_ba = loop_global_ba;
   c.synchronous_mapping = false;
   return c;
 }

@@ -52,6 +52,9 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("gravity_sigma_deg", &c.gravity_sigma_deg);
   r.read("odometry_sigma_fraction", &c.odometry_sigma_fraction);
   r.read("odometry_sigma_min", &c.odometry_sigma_min);
+  r.read("loop_closing", &c.loop_closing);
+  r.read("loop_min_inliers", &c.loop_min_inliers);
+  r.read("loop_global_ba", &c.loop_global_ba);
   r.read("camera_tolerance", &c.camera_tolerance);
   r.read("map_file", &c.map_file);
   c.map_file = expandHome(c.map_file);

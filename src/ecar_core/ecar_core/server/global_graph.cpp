@@ -10,6 +10,7 @@
 #include "ecar_core/io/map_file.h"
 #include "ecar_core/io/slam_map_codec.h"
 #include "ecar_core/io/structure_codec.h"
+#include "ecar_core/structure/grid_caster.h"
 
 namespace ecar {
 namespace {
@@ -60,6 +61,15 @@ std::shared_ptr<SlamSystem> GlobalGraph::slamLocked(const PinholeCamera& camera,
   SlamConfig c = config_.slam;
   c.synchronous_mapping = false;
   slam_ = std::make_shared<SlamSystem>(camera, c);
+  // What hangs on the map moves with every loop correction.
+  slam_->loopCloser().setCorrectedCallback([this](const MapCorrection& correction) {
+    try {
+      applyMapCorrection(correction);
+    } catch (const Error&) {
+      // A VO database write failed: the objects stay where they were (still
+      // stored), the planes moved; the next correction or change retries.
+    }
+  });
   *created = true;
   return slam_;
 }
@@ -153,6 +163,92 @@ size_t GlobalGraph::eraseKeyFrame(KeyFrameId culled, KeyFrameId heir) {
   planes_.eraseKeyFrame(culled);
   grid_.eraseKeyFrame(culled);
   return vos_->moveKeyFrame(culled, heir);
+}
+
+MapCorrectionReport GlobalGraph::applyMapCorrection(const MapCorrection& correction) {
+  const auto start = std::chrono::steady_clock::now();
+  MapCorrectionReport report;
+  const std::shared_ptr<SlamSystem> slam = this->slam();
+  if (!slam || correction.empty()) return report;
+  {
+    std::unique_lock<std::shared_mutex> frozen(structure_mutex_);
+    // Where the moved keyframes were before (VOs take the correction of the
+    // nearest), and their new poses and cameras (their grid links are re-cast).
+    struct Moved {
+      KeyFrameId id;
+      Eigen::Vector3d centre_before;
+      Sim3 S;
+      SE3 T_w_c;
+      CameraPtr camera;
+    };
+    std::vector<Moved> moved;
+    {
+      auto lock = slam->map().readLock();
+      if (slam->map().epoch() != correction.epoch) return report;  // a replaced map
+      for (const auto& [id, S] : correction.keyframes) {
+        const KeyFrame* kf = slam->map().keyframe(id);
+        if (kf) moved.push_back({id, S.inverse() * kf->center(), S, kf->T_w_c(), kf->camera});
+      }
+    }
+    report.keyframes = moved.size();
+    report.points = correction.points_moved;
+    report.planes = planes_.transformPlanes(
+        [&](const std::vector<KeyFrameId>& keyframes) -> std::optional<Sim3> {
+          for (const KeyFrameId k : keyframes) {
+            const auto it = correction.keyframes.find(k);
+            if (it != correction.keyframes.end()) return it->second;
+          }
+          return std::nullopt;
+        });
+    const double reach2 = config_.vo_map_margin * config_.vo_map_margin;
+    const std::vector<ObjectId> objects = vos_->transformObjects(
+        [&](const VirtualObject& vo) -> std::optional<Sim3> {
+          const Moved* nearest = nullptr;
+          double best = reach2;
+          for (const Moved& m : moved) {
+            const double d2 = (m.centre_before - vo.position).squaredNorm();
+            if (d2 < best) {
+              best = d2;
+              nearest = &m;
+            }
+          }
+          if (!nearest) return std::nullopt;
+          return nearest->S;
+        },
+        "map");
+    report.objects = objects.size();
+    for (const VirtualObject& vo : vos_->objects(objects)) {
+      grid_.attachObject(vo, vos_->config().cell_size, vos_->config().attach_margin);
+    }
+    // Keyframe-cell links from the new poses on the moved planes.
+    const GridPlanes planes(planes_.planes(), config_.grid.boundary_margin);
+    std::vector<std::pair<CameraPtr, std::unique_ptr<GridCaster>>> casters;
+    std::vector<CellKey> cells;
+    for (const Moved& m : moved) {
+      if (!m.camera || !grid_.hasKeyFrame(m.id)) continue;
+      GridCaster* caster = nullptr;
+      for (auto& [c, g] : casters) {
+        if (c == m.camera) caster = g.get();
+      }
+      if (!caster) {
+        casters.emplace_back(m.camera, std::make_unique<GridCaster>(config_.grid, *m.camera));
+        caster = casters.back().second.get();
+      }
+      caster->visibleCells(m.T_w_c, planes, &cells);
+      report.keyframe_cells += cells.size();
+      grid_.setKeyFrameCells(m.id, cells);
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++generation_;
+  }
+  try {
+    updateVoBounds();
+  } catch (const Error&) {
+  }
+  report.milliseconds = msSince(start);
+  std::lock_guard<std::mutex> events(events_mutex_);
+  for (GraphListener* l : listeners_) l->onMapCorrected(report);
+  return report;
 }
 
 void GlobalGraph::updateVoBounds() {

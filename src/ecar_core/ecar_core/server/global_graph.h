@@ -36,6 +36,7 @@
 
 #include "ecar_core/common/camera.h"
 #include "ecar_core/server/device_registry.h"
+#include "ecar_core/slam/map_correction.h"
 #include "ecar_core/slam/map_queries.h"
 #include "ecar_core/slam/slam_system.h"
 #include "ecar_core/structure/grid_caster.h"
@@ -70,6 +71,12 @@ struct GlobalGraphConfig {
 /// Receives device and SLAM events. Calls are serialised (one at a time) and
 /// made without the graph's locks, so handlers may query the graph; they must
 /// not connect or remove devices.
+/// What a map correction moved besides the SLAM map (applyMapCorrection).
+struct MapCorrectionReport {
+  size_t keyframes = 0, points = 0, planes = 0, objects = 0, keyframe_cells = 0;
+  double milliseconds = 0.0;
+};
+
 class GraphListener {
  public:
   virtual ~GraphListener() = default;
@@ -77,6 +84,9 @@ class GraphListener {
   virtual void onSlamCreated(const std::shared_ptr<SlamSystem>& /*slam*/) {}
   virtual void onDeviceAdded(const DeviceInfo& /*device*/) {}
   virtual void onDeviceRemoved(const DeviceInfo& /*device*/) {}
+  /// The map was corrected (a loop closed, a global BA): keyframes, points,
+  /// planes and VOs moved, all of it done (VOs in SQLite) before this call.
+  virtual void onMapCorrected(const MapCorrectionReport& /*report*/) {}
 };
 
 /// What a map file holds (or held).
@@ -144,6 +154,14 @@ class GlobalGraph {
   /// moved; throws ecar::Error when the database write fails. Does nothing
   /// while a load runs (the keyframe belongs to the map being replaced).
   size_t eraseKeyFrame(KeyFrameId culled, KeyFrameId heir);
+  /// Moves what hangs on the map with a correction the SLAM applied (loop
+  /// closing, global BA): planes with the correction of their keyframes, VOs
+  /// with that of the keyframe nearest to them (before the correction; version
+  /// + 1, in SQLite before this returns), grid links re-made; then tells the
+  /// listeners. With the structure frozen, so no module sees half of it. A
+  /// correction of a replaced map (another epoch) is ignored. Called by the
+  /// SLAM's loop closer (its thread, no SLAM lock held).
+  MapCorrectionReport applyMapCorrection(const MapCorrection& correction);
   /// The VO map bounds: the keyframe centres' bounding box grown by
   /// vo_map_margin, within the configured bounds (unchanged without a map).
   void updateVoBounds();

@@ -6,6 +6,7 @@
 
 #include "ecar_core/common/error.h"
 #include "ecar_core/slam/local_mapper.h"
+#include "ecar_core/slam/loop_closer.h"
 #include "ecar_core/slam/matcher.h"
 
 namespace ecar {
@@ -134,6 +135,7 @@ void LocalMapper::process(KeyFrameId kf) {
     callback = mapped_callback_;
   }
   if (callback) callback(kf);
+  if (loop_closer_) loop_closer_->insert(kf);
 }
 
 void LocalMapper::cullRecentPoints(KeyFrameId kf) {
@@ -340,8 +342,9 @@ int LocalMapper::fuseInto(KeyFrameId target, const std::vector<MapPointId>& poin
   return fused;
 }
 
-void LocalMapper::addOdometryEdges(const std::vector<KeyFrameId>& ids, BaProblem* problem) const {
-  if (!(config_.odometry_sigma_fraction > 0.0)) return;
+void addOdometryEdges(const Map& map, const SlamConfig& config, const std::vector<KeyFrameId>& ids,
+                      BaProblem* problem) {
+  if (!(config.odometry_sigma_fraction > 0.0)) return;
   // Each device's keyframes in the window with odometry, in time order; an
   // edge between consecutive ones.
   struct Stamped {
@@ -351,7 +354,7 @@ void LocalMapper::addOdometryEdges(const std::vector<KeyFrameId>& ids, BaProblem
   };
   std::unordered_map<DeviceId, std::vector<Stamped>> by_device;
   for (size_t i = 0; i < ids.size(); ++i) {
-    const KeyFrame* k = map_->keyframe(ids[i]);
+    const KeyFrame* k = map.keyframe(ids[i]);
     if (k && k->features.T_o_c) {
       by_device[k->device].push_back({k->timestamp, static_cast<int>(i), k});
     }
@@ -362,7 +365,7 @@ void LocalMapper::addOdometryEdges(const std::vector<KeyFrameId>& ids, BaProblem
     for (size_t i = 1; i < list.size(); ++i) {
       const Stamped& a = list[i - 1];
       const Stamped& b = list[i];
-      if (b.timestamp - a.timestamp > config_.odometry_max_gap) continue;
+      if (b.timestamp - a.timestamp > config.odometry_max_gap) continue;
       const SE3& T_o_a = *a.kf->features.T_o_c;
       const SE3& T_o_b = *b.kf->features.T_o_c;
       BaProblem::OdometryEdge edge;
@@ -370,7 +373,7 @@ void LocalMapper::addOdometryEdges(const std::vector<KeyFrameId>& ids, BaProblem
       edge.to = b.index;
       edge.t_from_to = T_o_a.linear().transpose() * (T_o_b.translation() - T_o_a.translation());
       edge.sigma =
-          config_.odometry_sigma_min + config_.odometry_sigma_fraction * edge.t_from_to.norm();
+          config.odometry_sigma_min + config.odometry_sigma_fraction * edge.t_from_to.norm();
       problem->odometry.push_back(edge);
     }
   }
@@ -382,9 +385,11 @@ void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
   std::vector<KeyFrameId> kf_ids;
   std::vector<MapPointId> point_ids;
   uint32_t epoch = 0;
+  uint64_t revision = 0;
   {
     auto lock = map_->readLock();
     epoch = map_->epoch();
+    revision = map_->revision();
     if (!map_->keyframe(kf)) return;
     std::vector<KeyFrameId> local = {kf};
     for (const auto& n : map_->bestCovisible(kf, config_.ba_keyframes)) local.push_back(n);
@@ -437,13 +442,14 @@ void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
       }
       problem.keyframes[oldest].fixed = true;
     }
-    if (map_->metric()) addOdometryEdges(kf_ids, &problem);
+    if (map_->metric()) addOdometryEdges(*map_, config_, kf_ids, &problem);
   }
   if (problem.observations.empty()) return;
   localBundleAdjust(&problem, config_.ba);
 
   auto lock = map_->writeLock();
-  if (map_->epoch() != epoch) return;  // the map was reset meanwhile
+  // The map was reset, or moved by a loop correction, meanwhile.
+  if (map_->epoch() != epoch || map_->revision() != revision) return;
   for (size_t i = 0; i < kf_ids.size(); ++i) {
     if (problem.keyframes[i].fixed) continue;
     if (KeyFrame* k = map_->mutableKeyFrame(kf_ids[i])) k->T_c_w = problem.keyframes[i].T_c_w;

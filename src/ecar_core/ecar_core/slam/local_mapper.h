@@ -28,6 +28,14 @@
 
 namespace ecar {
 
+class LoopCloser;
+
+/// Odometry edges (SlamConfig::odometry_*) between consecutive keyframes of
+/// each device among `ids` (indexed as in problem->keyframes). Hold the map's
+/// read lock.
+void addOdometryEdges(const Map& map, const SlamConfig& config, const std::vector<KeyFrameId>& ids,
+                      BaProblem* problem);
+
 class LocalMapper {
  public:
   /// `keypoints` may be null.
@@ -58,6 +66,9 @@ class LocalMapper {
   /// the culled keyframe (plane and cell links, keyframe-attached objects)
   /// moves to the heir or goes. An empty function clears it.
   void setCulledCallback(std::function<void(KeyFrameId culled, KeyFrameId heir)> callback);
+  /// Hands every mapped keyframe on to a loop closer (null: none). Set before
+  /// keyframes arrive.
+  void setLoopCloser(LoopCloser* closer) { loop_closer_ = closer; }
 
  private:
   void process(KeyFrameId kf);
@@ -66,15 +77,14 @@ class LocalMapper {
   int fuseDuplicates(KeyFrameId kf);
   int fuseInto(KeyFrameId target, const std::vector<MapPointId>& points);  // write lock held
   void localBundleAdjustment(KeyFrameId kf);
-  /// Odometry edges between consecutive keyframes of each device among `ids`
-  /// (the window's keyframes, indexed as in problem->keyframes). Read lock held.
-  void addOdometryEdges(const std::vector<KeyFrameId>& ids, BaProblem* problem) const;
+
   void cullKeyFrames(KeyFrameId kf);
   void run();
 
   Map* map_;
   PlaceIndex* index_;
   KeypointIndex* keypoints_;
+  LoopCloser* loop_closer_ = nullptr;
   SlamConfig config_;
   mutable std::mutex queue_mutex_;
   std::condition_variable queue_cv_;

@@ -100,6 +100,10 @@ class Map {
   /// Metric: initialised with odometry (metres); otherwise scaled by the
   /// first views' median depth.
   bool metric() const { return metric_; }
+  /// Moves on whenever keyframes and points were moved together by a
+  /// correction (loop closing, global BA, a merge): work on a copy taken in an
+  /// older revision (a local BA) must not be written back.
+  uint64_t revision() const { return revision_; }
   /// Checks the map's invariants: every observation is recorded on both sides
   /// (point -> keyframe keypoint and back), and ids refer to live entries.
   /// Returns the first violation found, empty when consistent.
@@ -108,6 +112,7 @@ class Map {
   // ---- write access (hold writeLock)
   KeyFrame* mutableKeyFrame(KeyFrameId id);
   void setMetric(bool metric) { metric_ = metric; }
+  void bumpRevision() { ++revision_; }
   MapPoint* mutablePoint(MapPointId id);
   /// Assigns the id. Throws ecar::Error when the keyframe has no camera.
   KeyFrameId addKeyFrame(KeyFrame kf);
@@ -155,6 +160,7 @@ class Map {
   uint32_t next_keyframe_ = 1, next_point_ = 1;
   uint32_t epoch_ = 1;
   bool metric_ = false;
+  uint64_t revision_ = 0;
 };
 
 }  // namespace ecar

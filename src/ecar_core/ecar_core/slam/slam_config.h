@@ -10,6 +10,34 @@
 
 namespace ecar {
 
+/// Loop closing (loop_closer.h).
+struct LoopClosingConfig {
+  bool enabled = true;
+  /// The new keyframe's best covisible neighbours (the "current side") are no
+  /// candidates; their points join its own when the loop is verified.
+  int covisible_excluded = 30;
+  int query_neighbours = 5;
+  /// A candidate's id is at least this much below the new keyframe's.
+  int min_keyframe_gap = 20;
+  size_t candidates = 3;          ///< place-recognition candidates checked
+  int candidate_neighbours = 10;  ///< the candidate's neighbours whose points are matched
+  double ratio = 0.8;             ///< descriptor ratio test
+  /// Similarity inliers needed, from at least min_inlier_keyframes keyframes
+  /// of the current side (checked with the neighbours).
+  int min_inliers = 40;
+  int min_inlier_keyframes = 2;
+  /// 3D inlier tolerance: this fraction of the point's distance from the
+  /// candidate keyframe's camera, plus 1 cm (map units).
+  double tolerance_fraction = 0.03;
+  int strong_covisibility = 100;  ///< covisibility edges of the pose graph
+  int pose_graph_iterations = 20;
+  /// A global bundle adjustment after each closed loop.
+  bool global_ba = true;
+  int global_ba_iterations = 10;
+  /// After a loop, the next one is looked for this many keyframes later.
+  int keyframes_between_loops = 5;
+};
+
 struct SlamConfig {
   OrbConfig orb;
   TwoViewConfig two_view;
@@ -61,7 +89,10 @@ struct SlamConfig {
   double odometry_sigma_fraction = 0.02;
   double odometry_sigma_min = 0.01;  ///< m
   double odometry_max_gap = 10.0;    ///< s
-  bool synchronous_mapping = true;   ///< map each keyframe inside track()
+  LoopClosingConfig loops;
+  /// Map each keyframe (and look for loops) inside track(); otherwise the
+  /// mapper and the loop closer have their own threads.
+  bool synchronous_mapping = true;
   /// Epoch of the first map (Map::epoch); a server makes it differ between
   /// its starts so that devices notice a restarted server. >= 1.
   uint32_t first_epoch = 1;

@@ -13,13 +13,21 @@ SlamSystem::SlamSystem(const PinholeCamera& camera, const SlamConfig& config)
       map_(ScaleInfo::fromConfig(config.orb)),
       index_(config.place),
       keypoint_index_(config.keypoints),
-      mapper_(&map_, &index_, config, &keypoint_index_) {
+      mapper_(&map_, &index_, config, &keypoint_index_),
+      loops_(&map_, &index_, config) {
   if (config_.first_epoch < 1) throw Error("SlamConfig: first_epoch must be >= 1");
   map_.setCounters(map_.nextKeyFrameId(), map_.nextPointId(), config_.first_epoch);
-  if (!config_.synchronous_mapping) mapper_.startThread();
+  mapper_.setLoopCloser(&loops_);
+  if (!config_.synchronous_mapping) {
+    loops_.startThread();
+    mapper_.startThread();
+  }
 }
 
-SlamSystem::~SlamSystem() { mapper_.stopThread(); }
+SlamSystem::~SlamSystem() {
+  mapper_.stopThread();
+  loops_.stopThread();
+}
 
 std::shared_ptr<Tracker> SlamSystem::sharedTracker(DeviceId device) {
   std::lock_guard<std::mutex> lock(trackers_mutex_);
@@ -101,6 +109,7 @@ void SlamSystem::installMap(std::unique_ptr<Map> map) {
   if (!map) throw Error("SlamSystem::installMap: no map");
   std::unique_lock<std::shared_mutex> session(session_mutex_);  // no track() runs
   mapper_.reset();
+  loops_.reset();
   std::vector<std::pair<KeyFrameId, cv::Mat>> descriptors;
   std::vector<std::vector<int>> point_rows;
   {

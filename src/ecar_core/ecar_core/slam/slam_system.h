@@ -1,5 +1,6 @@
 // Monocular ORB SLAM for the edge server: one shared Map, a Tracker per
-// device, and a LocalMapper that takes keyframes from every device. Each
+// device, a LocalMapper that takes keyframes from every device, and a
+// LoopCloser that closes loops in the map. Each
 // device has its own camera (setCamera; the constructor's camera is the
 // default); its keyframes carry it, and mapping uses each keyframe's own.
 //
@@ -25,6 +26,7 @@
 #include "ecar_core/common/camera.h"
 #include "ecar_core/common/types.h"
 #include "ecar_core/slam/local_mapper.h"
+#include "ecar_core/slam/loop_closer.h"
 #include "ecar_core/slam/map.h"
 #include "ecar_core/slam/place_recognition.h"
 #include "ecar_core/slam/slam_config.h"
@@ -93,6 +95,7 @@ class SlamSystem {
   Map& map() { return map_; }
   const Map& map() const { return map_; }
   LocalMapper& mapper() { return mapper_; }
+  LoopCloser& loopCloser() { return loops_; }
   /// The default camera (of devices with none of their own).
   const PinholeCamera& camera() const { return *camera_; }
 
@@ -103,6 +106,7 @@ class SlamSystem {
   PlaceIndex index_;
   KeypointIndex keypoint_index_;
   LocalMapper mapper_;
+  LoopCloser loops_;
   /// Shared by track() calls, exclusive while a map is installed.
   std::shared_mutex session_mutex_;
   mutable std::mutex trackers_mutex_;  // guards trackers_ and cameras_

@@ -99,6 +99,14 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
   {
     auto lock = map_->readLock();
     map_ready = map_->initialized();
+    // A loop correction moved the map since the last image: the last pose
+    // moves with the reference keyframe, so the motion model predicts in the
+    // corrected map.
+    if (state_ == TrackingState::kOk && map_->revision() != seen_revision_) {
+      if (const KeyFrame* ref = map_->keyframe(reference_kf_)) {
+        last_T_c_w_ = last_T_c_w_ * reference_pose_.inverse() * ref->T_c_w;
+      }
+    }
   }
   if (current_.size() < 50) {
     result.message = "too few features (" + std::to_string(current_.size()) + ")";
@@ -134,6 +142,12 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
       if (needKeyFrame()) result.new_keyframe = createKeyFrame();
     }
     last_T_c_w_ = T_c_w_;
+    {
+      auto lock = map_->readLock();
+      seen_revision_ = map_->revision();
+      const KeyFrame* ref = map_->keyframe(reference_kf_);
+      reference_pose_ = ref ? ref->T_c_w : SE3::Identity();
+    }
     last_inliers_ = static_cast<int>(std::count(inliers_.begin(), inliers_.end(), true));
     last_ = current_;
     last_matches_ = matches_;

@@ -121,6 +121,10 @@ class Tracker {
   std::vector<bool> inliers_;
   std::optional<SE3> velocity_;  ///< T_c_last: motion from the last frame to the current
   KeyFrameId reference_kf_;
+  /// The map revision and the reference keyframe's pose at the last image
+  /// tracked (a loop correction in between moves the last pose with it).
+  uint64_t seen_revision_ = 0;
+  SE3 reference_pose_ = SE3::Identity();
   std::vector<KeyFrameId> local_keyframes_;
   uint32_t frames_since_keyframe_ = 0;
   int relocalisations_ = 0;

@@ -51,6 +51,11 @@ void GridMap::eraseKeyFrame(KeyFrameId keyframe) {
   unlinkLocked(keyframe);
 }
 
+bool GridMap::hasKeyFrame(KeyFrameId keyframe) const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return keyframe_cells_.count(keyframe) > 0;
+}
+
 size_t GridMap::numKeyFrames() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   return keyframe_cells_.size();

@@ -36,6 +36,8 @@ class GridMap {
   /// Removes a keyframe and its links.
   void eraseKeyFrame(KeyFrameId keyframe);
   size_t numKeyFrames() const;
+  /// True when the keyframe has links (it was linked and not erased).
+  bool hasKeyFrame(KeyFrameId keyframe) const;
   /// Cells linked to at least one keyframe.
   size_t numCells() const;
 

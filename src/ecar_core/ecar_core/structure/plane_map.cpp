@@ -353,6 +353,28 @@ void PlaneMap::eraseKeyFrame(KeyFrameId keyframe) {
   ++revision_;
 }
 
+size_t PlaneMap::transformPlanes(
+    const std::function<std::optional<Sim3>(const std::vector<KeyFrameId>&)>& correction) {
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  size_t moved = 0;
+  for (auto& [id, entry] : planes_) {
+    std::vector<KeyFrameId> keyframes(entry.keyframes.begin(), entry.keyframes.end());
+    std::sort(keyframes.begin(), keyframes.end());
+    const std::optional<Sim3> S = correction(keyframes);
+    if (!S) continue;
+    Plane& plane = entry.plane;
+    const Eigen::Vector3d on_plane = *S * (-plane.offset * plane.normal);
+    plane.normal = (S->R * plane.normal).normalized();
+    plane.offset = -plane.normal.dot(on_plane);
+    for (Eigen::Vector3d& b : plane.boundary) b = *S * b;
+    for (auto& [pid, p_w] : entry.points) p_w = *S * p_w;
+    ++plane.version;
+    ++moved;
+  }
+  if (moved > 0) ++revision_;
+  return moved;
+}
+
 std::vector<PlaneRecord> PlaneMap::save() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   std::vector<PlaneRecord> out;

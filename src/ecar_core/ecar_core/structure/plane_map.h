@@ -7,6 +7,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <shared_mutex>
 #include <unordered_map>
@@ -80,6 +81,14 @@ class PlaneMap {
 
   /// Removes a keyframe's links (planes stay).
   void eraseKeyFrame(KeyFrameId keyframe);
+
+  /// Moves planes with the map (a loop closure or merge moved its keyframes):
+  /// `correction` gives a plane's similarity from the keyframes linked to it,
+  /// or nullopt to leave it. A moved plane's normal, offset, boundary and
+  /// stored points are transformed and its version moves on. Returns how many
+  /// moved.
+  size_t transformPlanes(
+      const std::function<std::optional<Sim3>(const std::vector<KeyFrameId>&)>& correction);
 
   /// Every plane with its points and links, by increasing id.
   std::vector<PlaneRecord> save() const;

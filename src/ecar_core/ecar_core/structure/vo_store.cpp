@@ -489,6 +489,50 @@ size_t VoStore::moveKeyFrame(KeyFrameId from, KeyFrameId to) {
   return moved.size();
 }
 
+std::vector<ObjectId> VoStore::transformObjects(
+    const std::function<std::optional<Sim3>(const VirtualObject&)>& correction,
+    const std::string& editor) {
+  std::lock_guard<std::mutex> write(write_mutex_);
+  std::vector<VoRecord> moved;
+  {
+    std::shared_lock<std::shared_mutex> state(state_mutex_);
+    for (const auto& [id, record] : objects_) {
+      if (record.vo.deleted) continue;
+      const std::optional<Sim3> S = correction(record.vo);
+      if (!S) continue;
+      VoRecord next = record;
+      VirtualObject& vo = next.vo;
+      vo.position = *S * vo.position;
+      vo.start = *S * vo.start;
+      vo.end = *S * vo.end;
+      vo.normal = (S->R * vo.normal).normalized();
+      vo.version = record.vo.version + 1;
+      if (editor.empty() || editor != record.last_editor) next.editor_since = record.vo.version;
+      next.last_editor = editor;
+      if (!vo.position.allFinite() || !vo.start.allFinite() || !vo.end.allFinite()) continue;
+      moved.push_back(std::move(next));
+    }
+  }
+  std::vector<ObjectId> ids;
+  if (moved.empty()) return ids;
+  std::vector<const VoRecord*> rows;
+  for (const VoRecord& e : moved) rows.push_back(&e);
+  std::string error;
+  if (!db_->writeAll(rows, &error)) {
+    throw Error(config_.database_path + ": moving " + std::to_string(moved.size()) +
+                " objects with the map failed: " + error);
+  }
+  std::unique_lock<std::shared_mutex> state(state_mutex_);
+  for (VoRecord& e : moved) {
+    VoRecord& stored = objects_.at(e.vo.id);
+    detach(stored);
+    ids.push_back(e.vo.id);
+    stored = std::move(e);
+    attach(stored);
+  }
+  return ids;
+}
+
 void VoStore::backupTo(const std::string& path) const {
   std::lock_guard<std::mutex> write(write_mutex_);
   db_->backupTo(path);

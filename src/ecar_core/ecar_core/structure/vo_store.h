@@ -37,6 +37,7 @@
 
 #include <Eigen/Core>
 
+#include "ecar_core/common/geometry.h"
 #include "ecar_core/common/types.h"
 #include "ecar_core/structure/virtual_object.h"
 
@@ -107,6 +108,17 @@ class VoStore {
   /// before memory changes; throws ecar::Error naming the database when the
   /// write fails (nothing changes then). Returns how many moved.
   size_t moveKeyFrame(KeyFrameId from, KeyFrameId to);
+
+  /// Moves live objects with the map around them (a loop closure or a merge
+  /// moved keyframes and points): `correction` gives an object's similarity,
+  /// or nullopt to leave it. Each moved object becomes version + 1 (edited by
+  /// `editor`, so every device holding it is sent the new position); all rows
+  /// are written in one database transaction before memory changes. Throws
+  /// ecar::Error naming the database when the write fails (nothing changes
+  /// then). Returns the ids moved.
+  std::vector<ObjectId> transformObjects(
+      const std::function<std::optional<Sim3>(const VirtualObject&)>& correction,
+      const std::string& editor);
 
   /// Replaces the map bounds (e.g. by the map's extent plus a margin) for the
   /// checks of later changes. Throws ecar::Error when min > max or not finite.

@@ -13,6 +13,8 @@
 #include "ecar_core/common/error.h"
 #include "ecar_core/server/grid_connection.h"
 #include "ecar_core/server/plane_segmentation.h"
+#include "ecar_core/slam/map_correction.h"
+#include "ecar_core/slam/pose_graph.h"
 #include "ecar_core/structure/plane_segmenter.h"
 #include "server/structure_fixtures.h"
 #include "test_support.h"
@@ -311,6 +313,78 @@ TEST(GlobalGraphTest, BadFilesAndPathsFailNamingThePathAndChangeNothing) {
   EXPECT_EQ(foreign.load(good).objects, 2u);
   EXPECT_EQ(foreign.vos().numObjects(), 2u);
   EXPECT_EQ(foreign.slam()->camera().params().fx, 400.0);
+}
+
+// A loop correction moved keyframe 1 by 10 cm up, 0.5 m sideways and 2
+// degrees about the vertical: its floor, the object drawn on it and the
+// keyframe's cells move with it, the object's new position is in SQLite (a
+// fresh store reads it back), and a correction of a replaced map is ignored.
+TEST(GlobalGraphTest, AMapCorrectionMovesPlanesObjectsAndCells) {
+  const TempDir dir;
+  const GlobalGraphConfig config = configWith(dir.file("vo.sqlite"));
+  Sim3 C;
+  C.R = expSO3(Eigen::Vector3d(0.0, 0.0, 2.0 * M_PI / 180.0));
+  C.t = Eigen::Vector3d(0.0, 0.5, 0.1);
+  ObjectId id;
+  VirtualObject before;
+  {
+    GlobalGraph graph(config);
+    const std::shared_ptr<SlamSystem> slam = graph.slamFor(camera640());
+    {
+      auto lock = slam->map().writeLock();
+      KeyFrame kf;
+      kf.camera = std::make_shared<const PinholeCamera>(camera640());
+      kf.T_c_w = lookingAlongX(0.0).inverse();
+      ASSERT_EQ(slam->map().addKeyFrame(std::move(kf)), KeyFrameId(1));
+    }
+    GridConnection grid(&graph, GridConnectionConfig());
+    ASSERT_GT(grid.linkKeyFrame(addFloor(&graph, KeyFrameId(1), lookingAlongX(0.0))), 0u);
+    const VoOutcome a = grid.apply(registration(lineAt(2.0)));
+    ASSERT_TRUE(a.accepted) << a.reason;
+    id = a.id;
+    before = *graph.vos().get(id);
+    const std::vector<CellKey> cells_before = graph.grid().cellsOfKeyFrame(KeyFrameId(1));
+    const Plane floor_before = graph.planes().planes().front();
+
+    MapCorrection correction;
+    {
+      auto lock = slam->map().writeLock();
+      const Sim3 S_old = similarityOf(slam->map().keyframe(KeyFrameId(1))->T_c_w);
+      correction = applyCorrection(&slam->map(), {{KeyFrameId(1), S_old}},
+                                   {{KeyFrameId(1), S_old * C.inverse()}});
+    }
+    // A correction of another epoch (a map loaded since) changes nothing.
+    MapCorrection stale = correction;
+    stale.epoch += 1;
+    EXPECT_EQ(graph.applyMapCorrection(stale).objects, 0u);
+
+    const MapCorrectionReport report = graph.applyMapCorrection(correction);
+    EXPECT_EQ(report.keyframes, 1u);
+    EXPECT_EQ(report.planes, 1u);
+    EXPECT_EQ(report.objects, 1u);
+    EXPECT_GT(report.keyframe_cells, 0u);
+    const Plane floor = graph.planes().planes().front();
+    EXPECT_GT(floor.version, floor_before.version);
+    EXPECT_LT((floor.normal - C.R * floor_before.normal).norm(), 1e-9);
+    // The floor (about z = 0) is now about z = 0.1.
+    const Eigen::Vector3d on_floor = C * Eigen::Vector3d(2.0, 1.0, -floor_before.offset);
+    EXPECT_NEAR(floor.signedDistance(on_floor), 0.0, 1e-3);
+    EXPECT_NEAR(floor.offset, floor_before.offset - 0.1, 1e-3);
+    const VirtualObject after = *graph.vos().get(id);
+    EXPECT_EQ(after.version, before.version + 1);
+    EXPECT_LT((after.start - C * before.start).norm(), 1e-9);
+    EXPECT_LT((after.end - C * before.end).norm(), 1e-9);
+    EXPECT_NE(graph.grid().cellsOfKeyFrame(KeyFrameId(1)), cells_before);
+    EXPECT_FALSE(graph.grid().cellsOfObject(id).empty());
+  }
+  // What SQLite holds: the moved object.
+  VoStoreConfig vo_config = config.vo;
+  vo_config.cell_size = config.grid.cell_size;
+  VoStore reopened(vo_config);
+  const std::optional<VirtualObject> stored = reopened.get(id);
+  ASSERT_TRUE(stored.has_value());
+  EXPECT_EQ(stored->version, before.version + 1);
+  EXPECT_LT((stored->start - C * before.start).norm(), 1e-9);
 }
 
 TEST(GlobalGraphTest, CulledKeyFramesLoseTheirLinksAndHandTheirObjectsOn) {

@@ -60,6 +60,11 @@ struct ServerConfig {
   /// distance between consecutive keyframes of a device (fraction 0: off).
   double odometry_sigma_fraction = 0.02;
   double odometry_sigma_min = 0.01;  ///< m
+  /// SLAM: loop closing (place recognition outside the covisible
+  /// neighbourhood, similarity verification, pose graph, global BA).
+  bool loop_closing = true;
+  int loop_min_inliers = 40;   ///< similarity inliers a loop needs
+  bool loop_global_ba = true;  ///< a global bundle adjustment after each loop
   /// Devices' cameras within this fraction (fx, fy, cx, cy; distortion
   /// coefficients absolutely) count as one camera. Any camera may connect.
   double camera_tolerance = 0.005;

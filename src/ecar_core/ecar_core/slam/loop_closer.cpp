@@ -1,0 +1,457 @@
+#include "ecar_core/slam/loop_closer.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstring>
+#include <unordered_set>
+
+#include "ecar_core/slam/features.h"
+#include "ecar_core/slam/local_mapper.h"
+#include "ecar_core/slam/matcher.h"
+#include "ecar_core/slam/optimizer.h"
+#include "ecar_core/slam/pose_graph.h"
+#include "ecar_core/slam/sim3_solver.h"
+
+namespace ecar {
+namespace {
+
+double msSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+      .count();
+}
+
+/// A map point as the matching sees it.
+struct PointView {
+  MapPointId id;
+  Eigen::Vector3d p_w;
+  const uint8_t* descriptor;  ///< valid while the read lock is held
+  KeyFrameId keyframe;        ///< source side: the keyframe whose keypoint saw it
+};
+
+}  // namespace
+
+struct LoopCloser::Candidate {
+  KeyFrameId query, match;
+  Sim3 S;  ///< current-side world -> match-side world
+  int inliers = 0;
+  std::vector<std::pair<MapPointId, MapPointId>> duplicates;  ///< (current side, match side)
+};
+
+LoopCloser::LoopCloser(Map* map, PlaceIndex* index, const SlamConfig& config)
+    : map_(map), index_(index), config_(config) {}
+
+LoopCloser::~LoopCloser() { stopThread(); }
+
+void LoopCloser::insert(KeyFrameId kf) {
+  if (!config_.loops.enabled) return;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    queue_.push_back(kf);
+  }
+  if (thread_.joinable()) {
+    cv_.notify_one();
+  } else {
+    processPending();  // synchronous mode: deterministic, inside the mapper's call
+  }
+}
+
+void LoopCloser::processPending() {
+  for (;;) {
+    KeyFrameId kf;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (queue_.empty()) return;
+      kf = queue_.front();
+      queue_.pop_front();
+      busy_ = true;
+    }
+    process(kf);
+    busy_ = false;
+  }
+}
+
+void LoopCloser::startThread() {
+  if (thread_.joinable()) return;
+  stop_ = false;
+  thread_ = std::thread([this] { run(); });
+}
+
+void LoopCloser::stopThread() {
+  if (!thread_.joinable()) return;
+  stop_ = true;
+  cv_.notify_all();
+  thread_.join();
+}
+
+void LoopCloser::reset() {
+  // Not waiting for a loop being closed: it was computed on the old map, whose
+  // epoch differs now, and is dropped before it changes anything (and a
+  // corrected callback may be waiting for the caller's own locks).
+  std::lock_guard<std::mutex> lock(mutex_);
+  queue_.clear();
+  loop_edges_.clear();
+  last_loop_keyframe_ = KeyFrameId();
+}
+
+bool LoopCloser::idle() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return queue_.empty() && !busy_;
+}
+
+std::vector<LoopClosure> LoopCloser::closures() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return closures_;
+}
+
+void LoopCloser::setCorrectedCallback(std::function<void(const MapCorrection&)> callback) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  callback_ = std::move(callback);
+}
+
+void LoopCloser::run() {
+  for (;;) {
+    KeyFrameId kf;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      cv_.wait(lock, [this] { return stop_ || !queue_.empty(); });
+      if (queue_.empty()) return;
+      kf = queue_.front();
+      queue_.pop_front();
+      busy_ = true;
+    }
+    process(kf);
+    busy_ = false;
+  }
+}
+
+void LoopCloser::notify(const MapCorrection& correction) {
+  std::function<void(const MapCorrection&)> callback;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    callback = callback_;
+  }
+  if (callback) callback(correction);
+}
+
+void LoopCloser::process(KeyFrameId kf) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (last_loop_keyframe_.valid() &&
+        kf.value < last_loop_keyframe_.value +
+                       static_cast<uint32_t>(config_.loops.keyframes_between_loops)) {
+      return;
+    }
+  }
+  LoopClosure report;
+  Candidate candidate;
+  const auto t0 = std::chrono::steady_clock::now();
+  const bool found = detect(kf, &candidate, &report);
+  report.detect_ms = msSince(t0);
+  if (!found) return;
+  correct(candidate, &report);
+  if (config_.loops.global_ba) globalBundleAdjustment(&report);
+  std::lock_guard<std::mutex> lock(mutex_);
+  last_loop_keyframe_ = kf;
+  closures_.push_back(report);
+}
+
+bool LoopCloser::detect(KeyFrameId kf, Candidate* out, LoopClosure* report) {
+  const LoopClosingConfig& c = config_.loops;
+  cv::Mat descriptors;
+  std::unordered_set<KeyFrameId> excluded;
+  std::vector<KeyFrameId> query_side;
+  {
+    auto lock = map_->readLock();
+    const KeyFrame* k = map_->keyframe(kf);
+    if (!k || k->features.descriptors.empty()) return false;
+    if (map_->numKeyFrames() < static_cast<size_t>(c.min_keyframe_gap)) return false;
+    descriptors = k->features.descriptors;
+    excluded.insert(kf);
+    for (const KeyFrameId n : map_->bestCovisible(kf, c.covisible_excluded)) excluded.insert(n);
+    query_side.push_back(kf);
+    for (const KeyFrameId n : map_->bestCovisible(kf, c.query_neighbours)) query_side.push_back(n);
+  }
+  const std::vector<PlaceCandidate> candidates =
+      index_->query(descriptors, static_cast<size_t>(c.covisible_excluded) + 3 * c.candidates, 0.0);
+  size_t tried = 0;
+  for (const PlaceCandidate& pc : candidates) {
+    if (tried >= c.candidates) break;
+    if (excluded.count(pc.keyframe) ||
+        pc.keyframe.value + static_cast<uint32_t>(c.min_keyframe_gap) > kf.value) {
+      continue;
+    }
+    ++tried;
+    std::vector<PointPair> pairs;
+    std::vector<std::pair<MapPointId, MapPointId>> ids;
+    std::vector<KeyFrameId> source_keyframes;
+    {
+      auto lock = map_->readLock();
+      const KeyFrame* m = map_->keyframe(pc.keyframe);
+      if (!m) continue;
+      const Eigen::Vector3d centre = m->center();
+      // The candidate's side: its points and its neighbours' (not the current side's).
+      std::vector<PointView> targets;
+      std::unordered_set<MapPointId> target_ids;
+      std::vector<KeyFrameId> match_side = {pc.keyframe};
+      for (const KeyFrameId n : map_->bestCovisible(pc.keyframe, c.candidate_neighbours)) {
+        if (!excluded.count(n)) match_side.push_back(n);
+      }
+      for (const KeyFrameId id : match_side) {
+        for (const MapPointId pid : map_->keyframe(id)->points) {
+          const MapPoint* p = map_->point(pid);
+          if (!p || p->descriptor.empty() || !target_ids.insert(pid).second) continue;
+          targets.push_back({pid, p->p_w, p->descriptor.ptr<uint8_t>(0), id});
+        }
+      }
+      // The current side: each of its keypoints with a point not seen on the other side.
+      std::unordered_set<MapPointId> source_ids;
+      for (const KeyFrameId id : query_side) {
+        const KeyFrame* q = map_->keyframe(id);
+        if (!q) continue;
+        for (size_t i = 0; i < q->points.size(); ++i) {
+          const MapPoint* p = map_->point(q->points[i]);
+          if (!p || target_ids.count(p->id) || !source_ids.insert(p->id).second) continue;
+          const uint8_t* d = q->features.descriptors.ptr<uint8_t>(static_cast<int>(i));
+          int best = 256, second = 256, best_index = -1;
+          for (size_t t = 0; t < targets.size(); ++t) {
+            const int dist = descriptorDistance(d, targets[t].descriptor);
+            if (dist < best) {
+              second = best;
+              best = dist;
+              best_index = static_cast<int>(t);
+            } else if (dist < second) {
+              second = dist;
+            }
+          }
+          if (best_index < 0 || best > kDescriptorThresholdLow || best >= c.ratio * second)
+            continue;
+          const PointView& t = targets[best_index];
+          pairs.push_back({p->p_w, t.p_w, c.tolerance_fraction * (t.p_w - centre).norm() + 0.01});
+          ids.emplace_back(p->id, t.id);
+          source_keyframes.push_back(id);
+        }
+      }
+    }
+    if (static_cast<int>(pairs.size()) < c.min_inliers) continue;
+    Sim3EstimateConfig sc;
+    sc.min_inliers = c.min_inliers;
+    sc.seed = kf.value;
+    const Sim3Estimate e = estimateSim3(pairs, sc);
+    if (!e.success) continue;
+    std::unordered_set<KeyFrameId> seen_by;
+    Candidate cand;
+    for (size_t i = 0; i < pairs.size(); ++i) {
+      if (!e.inliers[i]) continue;
+      seen_by.insert(source_keyframes[i]);
+      cand.duplicates.push_back(ids[i]);
+    }
+    if (static_cast<int>(seen_by.size()) < c.min_inlier_keyframes) continue;
+    cand.query = kf;
+    cand.match = pc.keyframe;
+    cand.S = e.S;
+    cand.inliers = e.num_inliers;
+    *out = std::move(cand);
+    report->query = kf;
+    report->match = pc.keyframe;
+    report->inliers = e.num_inliers;
+    report->scale = e.S.scale;
+    return true;
+  }
+  return false;
+}
+
+void LoopCloser::correct(const Candidate& cand, LoopClosure* report) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const LoopClosingConfig& c = config_.loops;
+  // A snapshot of the keyframe graph.
+  std::vector<KeyFrameId> ids;
+  std::vector<Sim3> S_old;
+  std::vector<std::vector<std::pair<KeyFrameId, int>>> neighbours;
+  std::unordered_map<KeyFrameId, int> index;
+  std::unordered_set<KeyFrameId> current_side;
+  std::vector<KeyFrameId> match_side;
+  uint32_t epoch = 0;
+  {
+    auto lock = map_->readLock();
+    epoch = map_->epoch();
+    const KeyFrame* q = map_->keyframe(cand.query);
+    if (!q || !map_->keyframe(cand.match)) return;
+    report->device = q->device;
+    ids = map_->keyframeIds();
+    std::sort(ids.begin(), ids.end());
+    for (size_t i = 0; i < ids.size(); ++i) {
+      const KeyFrame* k = map_->keyframe(ids[i]);
+      index[ids[i]] = static_cast<int>(i);
+      S_old.push_back(similarityOf(k->T_c_w));
+      std::vector<std::pair<KeyFrameId, int>> n(k->covisibility.begin(), k->covisibility.end());
+      neighbours.push_back(std::move(n));
+    }
+    current_side.insert(cand.query);
+    for (const KeyFrameId n : map_->bestCovisible(cand.query, c.covisible_excluded)) {
+      current_side.insert(n);
+    }
+    match_side.push_back(cand.match);
+    for (const KeyFrameId n : map_->bestCovisible(cand.match, 5)) {
+      if (!current_side.count(n)) match_side.push_back(n);
+    }
+  }
+  // The current side moves rigidly with the loop's similarity; the pose graph
+  // spreads the rest of the correction along the essential graph.
+  const Sim3 S_inverse = cand.S.inverse();
+  std::vector<Sim3> initial = S_old;
+  for (const KeyFrameId id : current_side) {
+    const auto it = index.find(id);
+    if (it != index.end()) initial[it->second] = S_old[it->second] * S_inverse;
+  }
+  std::vector<PoseGraphEdge> edges;
+  const auto edge = [&](int a, int b, const Sim3& S_a_b) { edges.push_back({a, b, S_a_b, 1.0}); };
+  for (size_t i = 0; i < ids.size(); ++i) {
+    // Spanning tree: the older neighbour sharing the most points.
+    int parent = -1, parent_weight = 0;
+    for (const auto& [n, w] : neighbours[i]) {
+      const auto it = index.find(n);
+      if (it == index.end() || it->second >= static_cast<int>(i)) continue;
+      if (w > parent_weight) {
+        parent_weight = w;
+        parent = it->second;
+      }
+      if (w >= c.strong_covisibility)
+        edge(static_cast<int>(i), it->second, relative(S_old[i], S_old[it->second]));
+    }
+    if (parent >= 0 && parent_weight < c.strong_covisibility) {
+      edge(static_cast<int>(i), parent, relative(S_old[i], S_old[parent]));
+    } else if (parent < 0 && i > 0) {
+      edge(static_cast<int>(i), static_cast<int>(i) - 1, relative(S_old[i], S_old[i - 1]));
+    }
+  }
+  // The new loop, between the current side and the match side.
+  for (const KeyFrameId a : current_side) {
+    for (const KeyFrameId b : match_side) {
+      const auto ia = index.find(a), ib = index.find(b);
+      if (ia == index.end() || ib == index.end()) continue;
+      edge(ia->second, ib->second, relative(initial[ia->second], initial[ib->second]));
+    }
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const LoopEdge& l : loop_edges_) {
+      const auto ia = index.find(l.a), ib = index.find(l.b);
+      if (ia != index.end() && ib != index.end()) edge(ia->second, ib->second, l.S_a_b);
+    }
+  }
+  std::vector<bool> fixed(ids.size(), false);
+  fixed[0] = true;  // the map's oldest keyframe: its origin
+  fixed[index.at(cand.match)] = true;
+  PoseGraphConfig pc;
+  pc.iterations = c.pose_graph_iterations;
+  const PoseGraphResult r = optimizePoseGraph(initial, fixed, edges, pc);
+  if (!r.converged) return;
+
+  std::unordered_map<KeyFrameId, Sim3> before, after;
+  for (size_t i = 0; i < ids.size(); ++i) {
+    before[ids[i]] = S_old[i];
+    after[ids[i]] = r.S_c_w[i];
+  }
+  MapCorrection correction;
+  {
+    auto lock = map_->writeLock();
+    if (map_->epoch() != epoch) return;  // the map was replaced meanwhile
+    const KeyFrame* q = map_->keyframe(cand.query);
+    const Eigen::Vector3d centre_before = q ? q->center() : Eigen::Vector3d::Zero();
+    correction = applyCorrection(map_, before, after);
+    if (q) report->drift_m = (map_->keyframe(cand.query)->center() - centre_before).norm();
+    // Weld the seam: the same physical points seen from both sides become one.
+    for (const auto& [mine, theirs] : cand.duplicates) {
+      const MapPoint* a = map_->point(mine);
+      const MapPoint* b = map_->point(theirs);
+      if (!a || !b || mine == theirs) continue;
+      if (a->observations.size() > b->observations.size()) {
+        map_->replacePoint(theirs, mine);
+      } else {
+        map_->replacePoint(mine, theirs);
+      }
+      ++report->points_fused;
+    }
+    for (const KeyFrameId id : current_side) {
+      if (map_->keyframe(id)) map_->updateCovisibility(id);
+    }
+    for (const KeyFrameId id : match_side) {
+      if (map_->keyframe(id)) map_->updateCovisibility(id);
+    }
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    loop_edges_.push_back(
+        {cand.query, cand.match, relative(after.at(cand.query), after.at(cand.match))});
+  }
+  report->keyframes_moved = correction.keyframes.size();
+  report->points_moved = correction.points_moved;
+  report->correct_ms = msSince(t0);
+  notify(correction);
+}
+
+void LoopCloser::globalBundleAdjustment(LoopClosure* report) {
+  const auto t0 = std::chrono::steady_clock::now();
+  BaProblem problem;
+  std::vector<KeyFrameId> kf_ids;
+  std::vector<MapPointId> point_ids;
+  uint32_t epoch = 0;
+  uint64_t revision = 0;
+  {
+    auto lock = map_->readLock();
+    epoch = map_->epoch();
+    revision = map_->revision();
+    kf_ids = map_->keyframeIds();
+    std::sort(kf_ids.begin(), kf_ids.end());
+    if (kf_ids.size() < 3) return;
+    std::unordered_map<KeyFrameId, int> kf_index;
+    for (size_t i = 0; i < kf_ids.size(); ++i) {
+      const KeyFrame* k = map_->keyframe(kf_ids[i]);
+      kf_index[kf_ids[i]] = static_cast<int>(i);
+      problem.keyframes.push_back(
+          {k->T_c_w, k->K(), i == 0, k->alignedUp(config_.gravity_tolerance_deg)});
+    }
+    point_ids = map_->pointIds();
+    for (size_t p = 0; p < point_ids.size(); ++p) {
+      const MapPoint* mp = map_->point(point_ids[p]);
+      problem.points.push_back({mp->p_w});
+      for (const auto& [kid, idx] : mp->observations) {
+        const auto it = kf_index.find(kid);
+        if (it == kf_index.end()) continue;
+        const KeyFrame* k = map_->keyframe(kid);
+        const int octave = k->features.keypoints[idx].octave;
+        problem.observations.push_back({it->second, static_cast<int>(p),
+                                        k->features.undistorted[idx],
+                                        map_->scale().inv_sigma2[octave], false});
+      }
+    }
+    if (map_->metric()) addOdometryEdges(*map_, config_, kf_ids, &problem);
+  }
+  BaConfig ba = config_.ba;
+  ba.iterations_first = std::max(1, config_.loops.global_ba_iterations / 2);
+  ba.iterations_second = config_.loops.global_ba_iterations;
+  const BaResult result = localBundleAdjust(&problem, ba);
+  if (!result.converged) return;
+  std::unordered_map<KeyFrameId, Sim3> before, after;
+  MapCorrection correction;
+  {
+    auto lock = map_->writeLock();
+    if (map_->epoch() != epoch || map_->revision() != revision) return;  // moved meanwhile
+    for (size_t i = 0; i < kf_ids.size(); ++i) {
+      const KeyFrame* k = map_->keyframe(kf_ids[i]);
+      if (!k) continue;
+      before[kf_ids[i]] = similarityOf(k->T_c_w);
+      after[kf_ids[i]] = similarityOf(problem.keyframes[i].T_c_w);
+    }
+    correction = applyCorrection(map_, before, after);
+    // The adjusted points take their own positions, not their keyframe's motion.
+    for (size_t p = 0; p < point_ids.size(); ++p) {
+      if (MapPoint* mp = map_->mutablePoint(point_ids[p])) mp->p_w = problem.points[p].p_w;
+    }
+    for (const MapPointId pid : point_ids) map_->updatePointStatistics(pid);
+  }
+  report->global_ba_ms = msSince(t0);
+  notify(correction);
+}
+
+}  // namespace ecar

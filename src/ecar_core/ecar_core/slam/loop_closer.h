@@ -1,0 +1,101 @@
+// Loop closing within a map (ORB-SLAM's loop closing, for keyframes of every
+// device): each mapped keyframe is looked up in the place index among the
+// keyframes outside its covisible neighbourhood; a candidate is verified by a
+// robust similarity between the map points of the keyframe's neighbourhood
+// and the candidate's (descriptor matches, RANSAC, enough inliers over at
+// least two keyframes); the correction is spread over the map by a pose graph
+// on the essential graph (spanning tree, strong covisibility, loop edges),
+// applied to keyframes and points (map_correction.h), duplicates on both
+// sides of the seam fused, and a global bundle adjustment refines it all.
+//
+//   LoopCloser loops(&map, &place_index, config);
+//   loops.startThread();        // or processPending() after each keyframe
+//   loops.insert(keyframe);     // from the local mapper, once mapped
+//
+// Tracking and local mapping go on while a loop is detected and optimised:
+// the closer works on copies, and takes the map's write lock only to apply
+// the result (which moves the map's revision on, so work on older copies is
+// not written back).
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <functional>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "ecar_core/common/geometry.h"
+#include "ecar_core/common/types.h"
+#include "ecar_core/slam/map.h"
+#include "ecar_core/slam/map_correction.h"
+#include "ecar_core/slam/place_recognition.h"
+#include "ecar_core/slam/slam_config.h"
+
+namespace ecar {
+
+/// One closed loop (or a global BA pass): what was found and what it cost.
+struct LoopClosure {
+  KeyFrameId query;      ///< the new keyframe
+  KeyFrameId match;      ///< the older keyframe it closed with
+  DeviceId device;       ///< the device of the new keyframe
+  int inliers = 0;       ///< similarity inliers (map point pairs)
+  double scale = 1.0;    ///< of the similarity (scale drift around the loop)
+  double drift_m = 0.0;  ///< how far the new keyframe's camera moved
+  double detect_ms = 0.0, correct_ms = 0.0, global_ba_ms = 0.0;
+  size_t keyframes_moved = 0, points_moved = 0, points_fused = 0;
+};
+
+class LoopCloser {
+ public:
+  LoopCloser(Map* map, PlaceIndex* index, const SlamConfig& config);
+  ~LoopCloser();
+  LoopCloser(const LoopCloser&) = delete;
+  LoopCloser& operator=(const LoopCloser&) = delete;
+
+  void insert(KeyFrameId kf);
+  /// Handles every queued keyframe now (synchronous mode).
+  void processPending();
+  void startThread();
+  /// Handles the keyframes still queued, then stops the thread.
+  void stopThread();
+  /// Drops the queue and the loop edges (the map was replaced). Does not wait
+  /// for a loop being closed: work on the old map is dropped by its epoch.
+  void reset();
+  bool idle() const;
+  std::vector<LoopClosure> closures() const;
+  /// Called (on the closer's thread, without the map lock) after a loop was
+  /// closed and after each global BA, with what moved. Set before keyframes
+  /// arrive; an empty function clears it.
+  void setCorrectedCallback(std::function<void(const MapCorrection&)> callback);
+
+ private:
+  struct Candidate;
+  void process(KeyFrameId kf);
+  bool detect(KeyFrameId kf, Candidate* out, LoopClosure* report);
+  void correct(const Candidate& c, LoopClosure* report);
+  void globalBundleAdjustment(LoopClosure* report);
+  void notify(const MapCorrection& correction);
+  void run();
+
+  Map* map_;
+  PlaceIndex* index_;
+  SlamConfig config_;
+  mutable std::mutex mutex_;  // guards the queue, closures_, loop_edges_, callback_
+  std::condition_variable cv_;
+  std::deque<KeyFrameId> queue_;
+  std::vector<LoopClosure> closures_;
+  /// Loop edges kept for later pose graphs: (a, b, S_a_w S_b_w^-1 when closed).
+  struct LoopEdge {
+    KeyFrameId a, b;
+    Sim3 S_a_b;
+  };
+  std::vector<LoopEdge> loop_edges_;
+  std::function<void(const MapCorrection&)> callback_;
+  KeyFrameId last_loop_keyframe_;
+  std::atomic<bool> busy_{false}, stop_{false};
+  std::thread thread_;
+};
+
+}  // namespace ecar
