@@ -75,6 +75,10 @@ def parse_death(line):
     return "node %s died" % node
 
 
+def _default_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Child:
     """One child process and its log file. `what` names it for the user ("the player of
     device_0")."""
@@ -84,8 +88,11 @@ class Child:
         self._out = open(log_path, "w")
         self._out.write("# %s\n" % " ".join(shlex.quote(c) for c in cmd))
         self._out.flush()
+        # SIGINT is how children are stopped (stop_all): restore its default action,
+        # which a session started in the background of a shell (`run_session ... &`)
+        # would otherwise pass on as ignored, leaving every child to be killed.
         self.proc = subprocess.Popen(cmd, env=env, stdout=self._out, stderr=subprocess.STDOUT,
-                                     start_new_session=True)
+                                     start_new_session=True, preexec_fn=_default_sigint)
         self._scanned = 0  # bytes of the log scanned for roslaunch's reports
         self._reported = None
         self._report_end = None  # where roslaunch's report ends in the log
