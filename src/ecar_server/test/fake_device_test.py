@@ -727,7 +727,7 @@ class ServerTest(unittest.TestCase):
         self.assertTrue(after, "%s: no upload was aligned in the loaded map" % label)
         errors = {i: math.dist(after[i], before[i]) for i in after if i in before}
         self.assertTrue(errors, "%s: no frame tracked in both sessions" % label)
-        print("[map] %s: %d of %d uploads aligned, pose difference to the first session: "
+        print("[map] %s: %d of %d uploads aligned, pose difference to the saved map's: "
               "max %.2f cm, median %.2f cm" % (label, len(after), len(frames),
                                                100 * max(errors.values()),
                                                100 * statistics.median(errors.values())))
