@@ -1,6 +1,7 @@
 // LocalMapping (core: ecar::LocalMapper, started with the SLAM system, which
-// maps every device's keyframes into the one map): reports each keyframe it
-// finished on /ecar/keyframe_mapped. When the mapper culls a redundant
+// maps every device's keyframes into the one map, and ecar::LoopCloser):
+// reports each keyframe it finished on /ecar/keyframe_mapped, and logs every
+// loop closed and what its correction moved. When the mapper culls a redundant
 // keyframe, the global graph drops its plane and cell links and moves the
 // objects hanging on it (vo_attach keyframe) to its heir, the neighbour that
 // shared the most points with it.
@@ -40,6 +41,30 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
     slam->mapper().setMappedCallback([this, s](ecar::KeyFrameId id) { onMapped(*s, id); });
     slam->mapper().setCulledCallback(
         [this](ecar::KeyFrameId culled, ecar::KeyFrameId heir) { onCulled(culled, heir); });
+  }
+
+  // On the loop closer's thread, once planes and objects moved too.
+  void onMapCorrected(const ecar::MapCorrectionReport& report) override {
+    std::shared_ptr<ecar::SlamSystem> slam;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      slam = slam_;
+    }
+    const std::vector<ecar::LoopClosure> loops =
+        slam ? slam->loopCloser().closures() : std::vector<ecar::LoopClosure>();
+    if (!loops.empty() && loops.size() != reported_loops_) {
+      reported_loops_ = loops.size();
+      const ecar::LoopClosure& l = loops.back();
+      NODELET_INFO(
+          "loop closed: keyframe %u (%s) with keyframe %u, %d inliers, scale %.4f, it moved "
+          "%.3f m; detection %.1f ms, correction %.1f ms; %zu points fused",
+          l.query.value, graph_->devices().name(l.device).c_str(), l.match.value, l.inliers,
+          l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.points_fused);
+    }
+    NODELET_INFO("map corrected: %zu keyframes, %zu points, %zu planes, %zu objects moved "
+                 "(grid links of %zu keyframes re-cast, %zu cells) in %.1f ms",
+                 report.keyframes, report.points, report.planes, report.objects,
+                 report.keyframes_recast, report.keyframe_cells, report.milliseconds);
   }
 
  private:
@@ -84,6 +109,7 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
   ros::Publisher mapped_pub_;
   std::mutex mutex_;  // guards slam_
   std::shared_ptr<ecar::SlamSystem> slam_;
+  size_t reported_loops_ = 0;  // loop closer's thread only
 };
 
 }  // namespace ecar_server

@@ -170,18 +170,18 @@ MapCorrectionReport GlobalGraph::applyMapCorrection(const MapCorrection& correct
   MapCorrectionReport report;
   const std::shared_ptr<SlamSystem> slam = this->slam();
   if (!slam || correction.empty()) return report;
+  // Where the moved keyframes were before (VOs take the correction of the
+  // nearest), and their new poses and cameras (their grid links are re-cast).
+  struct Moved {
+    KeyFrameId id;
+    Eigen::Vector3d centre_before;
+    Sim3 S;
+    SE3 T_w_c;
+    CameraPtr camera;
+  };
+  std::vector<Moved> moved;
   {
     std::unique_lock<std::shared_mutex> frozen(structure_mutex_);
-    // Where the moved keyframes were before (VOs take the correction of the
-    // nearest), and their new poses and cameras (their grid links are re-cast).
-    struct Moved {
-      KeyFrameId id;
-      Eigen::Vector3d centre_before;
-      Sim3 S;
-      SE3 T_w_c;
-      CameraPtr camera;
-    };
-    std::vector<Moved> moved;
     {
       auto lock = slam->map().readLock();
       if (slam->map().epoch() != correction.epoch) return report;  // a replaced map
@@ -220,12 +220,25 @@ MapCorrectionReport GlobalGraph::applyMapCorrection(const MapCorrection& correct
     for (const VirtualObject& vo : vos_->objects(objects)) {
       grid_.attachObject(vo, vos_->config().cell_size, vos_->config().attach_margin);
     }
-    // Keyframe-cell links from the new poses on the moved planes.
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++generation_;
+  }
+  // Keyframe-cell links from the new poses, for keyframes that moved by more
+  // than a fraction of a cell (a global BA moves most by millimetres). Under
+  // the shared structure lock: modules go on meanwhile (ray casting hundreds
+  // of keyframes takes a while).
+  {
+    auto structure = structureLock();
+    if (epoch() != correction.epoch) return report;  // a map was loaded meanwhile
     const GridPlanes planes(planes_.planes(), config_.grid.boundary_margin);
     std::vector<std::pair<CameraPtr, std::unique_ptr<GridCaster>>> casters;
     std::vector<CellKey> cells;
+    const double min_move = 0.25 * config_.grid.cell_size;
     for (const Moved& m : moved) {
       if (!m.camera || !grid_.hasKeyFrame(m.id)) continue;
+      const Eigen::Vector3d centre = m.T_w_c.translation();
+      const double turn = Eigen::AngleAxisd(m.S.R).angle() * 10.0;  // ~ cell shift at 10 m
+      if ((centre - m.centre_before).norm() < min_move && turn < min_move) continue;
       GridCaster* caster = nullptr;
       for (auto& [c, g] : casters) {
         if (c == m.camera) caster = g.get();
@@ -236,10 +249,9 @@ MapCorrectionReport GlobalGraph::applyMapCorrection(const MapCorrection& correct
       }
       caster->visibleCells(m.T_w_c, planes, &cells);
       report.keyframe_cells += cells.size();
+      ++report.keyframes_recast;
       grid_.setKeyFrameCells(m.id, cells);
     }
-    std::lock_guard<std::mutex> lock(mutex_);
-    ++generation_;
   }
   try {
     updateVoBounds();

@@ -73,7 +73,8 @@ struct GlobalGraphConfig {
 /// not connect or remove devices.
 /// What a map correction moved besides the SLAM map (applyMapCorrection).
 struct MapCorrectionReport {
-  size_t keyframes = 0, points = 0, planes = 0, objects = 0, keyframe_cells = 0;
+  size_t keyframes = 0, points = 0, planes = 0, objects = 0;
+  size_t keyframes_recast = 0, keyframe_cells = 0;  ///< grid links re-made (moved > 1/4 cell)
   double milliseconds = 0.0;
 };
 
@@ -157,8 +158,10 @@ class GlobalGraph {
   /// Moves what hangs on the map with a correction the SLAM applied (loop
   /// closing, global BA): planes with the correction of their keyframes, VOs
   /// with that of the keyframe nearest to them (before the correction; version
-  /// + 1, in SQLite before this returns), grid links re-made; then tells the
-  /// listeners. With the structure frozen, so no module sees half of it. A
+  /// + 1, in SQLite before this returns), with the structure frozen so that no
+  /// module sees half of it; then the grid links of keyframes that moved by
+  /// more than a quarter cell are re-cast (modules go on meanwhile) and the
+  /// listeners told. A
   /// correction of a replaced map (another epoch) is ignored. Called by the
   /// SLAM's loop closer (its thread, no SLAM lock held).
   MapCorrectionReport applyMapCorrection(const MapCorrection& correction);

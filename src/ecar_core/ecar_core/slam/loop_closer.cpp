@@ -148,11 +148,20 @@ void LoopCloser::process(KeyFrameId kf) {
   const bool found = detect(kf, &candidate, &report);
   report.detect_ms = msSince(t0);
   if (!found) return;
-  correct(candidate, &report);
-  if (config_.loops.global_ba) globalBundleAdjustment(&report);
-  std::lock_guard<std::mutex> lock(mutex_);
-  last_loop_keyframe_ = kf;
-  closures_.push_back(report);
+  const MapCorrection correction = correct(candidate, &report);
+  if (correction.empty()) return;
+  {
+    // Recorded before the correction is announced (listeners may read it).
+    std::lock_guard<std::mutex> lock(mutex_);
+    last_loop_keyframe_ = kf;
+    closures_.push_back(report);
+  }
+  notify(correction);
+  if (config_.loops.global_ba) {
+    globalBundleAdjustment(&report);
+    std::lock_guard<std::mutex> lock(mutex_);
+    closures_.back().global_ba_ms = report.global_ba_ms;
+  }
 }
 
 bool LoopCloser::detect(KeyFrameId kf, Candidate* out, LoopClosure* report) {
@@ -260,7 +269,7 @@ bool LoopCloser::detect(KeyFrameId kf, Candidate* out, LoopClosure* report) {
   return false;
 }
 
-void LoopCloser::correct(const Candidate& cand, LoopClosure* report) {
+MapCorrection LoopCloser::correct(const Candidate& cand, LoopClosure* report) {
   const auto t0 = std::chrono::steady_clock::now();
   const LoopClosingConfig& c = config_.loops;
   // A snapshot of the keyframe graph.
@@ -275,7 +284,7 @@ void LoopCloser::correct(const Candidate& cand, LoopClosure* report) {
     auto lock = map_->readLock();
     epoch = map_->epoch();
     const KeyFrame* q = map_->keyframe(cand.query);
-    if (!q || !map_->keyframe(cand.match)) return;
+    if (!q || !map_->keyframe(cand.match)) return {};
     report->device = q->device;
     ids = map_->keyframeIds();
     std::sort(ids.begin(), ids.end());
@@ -345,7 +354,7 @@ void LoopCloser::correct(const Candidate& cand, LoopClosure* report) {
   PoseGraphConfig pc;
   pc.iterations = c.pose_graph_iterations;
   const PoseGraphResult r = optimizePoseGraph(initial, fixed, edges, pc);
-  if (!r.converged) return;
+  if (!r.converged) return {};
 
   std::unordered_map<KeyFrameId, Sim3> before, after;
   for (size_t i = 0; i < ids.size(); ++i) {
@@ -355,7 +364,7 @@ void LoopCloser::correct(const Candidate& cand, LoopClosure* report) {
   MapCorrection correction;
   {
     auto lock = map_->writeLock();
-    if (map_->epoch() != epoch) return;  // the map was replaced meanwhile
+    if (map_->epoch() != epoch) return {};  // the map was replaced meanwhile
     const KeyFrame* q = map_->keyframe(cand.query);
     const Eigen::Vector3d centre_before = q ? q->center() : Eigen::Vector3d::Zero();
     correction = applyCorrection(map_, before, after);
@@ -387,7 +396,7 @@ void LoopCloser::correct(const Candidate& cand, LoopClosure* report) {
   report->keyframes_moved = correction.keyframes.size();
   report->points_moved = correction.points_moved;
   report->correct_ms = msSince(t0);
-  notify(correction);
+  return correction;
 }
 
 void LoopCloser::globalBundleAdjustment(LoopClosure* report) {

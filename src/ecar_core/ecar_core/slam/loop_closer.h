@@ -74,7 +74,8 @@ class LoopCloser {
   struct Candidate;
   void process(KeyFrameId kf);
   bool detect(KeyFrameId kf, Candidate* out, LoopClosure* report);
-  void correct(const Candidate& c, LoopClosure* report);
+  /// Empty when nothing was applied (the map changed meanwhile).
+  MapCorrection correct(const Candidate& c, LoopClosure* report);
   void globalBundleAdjustment(LoopClosure* report);
   void notify(const MapCorrection& correction);
   void run();
