@@ -1,5 +1,7 @@
 #include "ecar_server/config.h"
 
+#include <filesystem>
+
 #include "ecar_core/common/error.h"
 
 namespace ecar_server {
@@ -50,6 +52,10 @@ void ServerConfig::validate() const {
   if (!(odometry_sigma_min > 0.0 && odometry_sigma_min <= 1.0)) {
     fail("odometry_sigma_min", "must be in (0, 1] m");
   }
+  if (!(autosave_period >= 1.0 && autosave_period <= 86400.0)) {
+    fail("autosave_period", "must be in [1, 86400] s");
+  }
+  if (autosave_file.empty()) fail("autosave_file", "must be 'auto', 'none' or a path");
   if (loop_min_inliers < 10 || loop_min_inliers > 10000) {
     fail("loop_min_inliers", "must be in [10, 10000]");
   }
@@ -79,6 +85,14 @@ void ServerConfig::validate() const {
   if (!(vo_marker_drag_rate >= 0.0) || vo_marker_drag_rate > 100.0) {
     fail("vo.marker_drag_rate", "must be in [0, 100] Hz");
   }
+}
+
+std::string ServerConfig::autosavePath() const {
+  if (autosave_file == "none") return {};
+  if (autosave_file != "auto") return autosave_file;
+  if (vo.database_path.empty() || vo.database_path == ":memory:") return {};
+  const std::filesystem::path db(vo.database_path);
+  return (db.parent_path() / (db.stem().string() + ".autosave.ecarmap")).string();
 }
 
 ecar::SlamConfig ServerConfig::slamConfig() const {

@@ -5,7 +5,8 @@
 // is the global graph's (ecar::GlobalGraph::save / load); a failure is
 // answered with success = false and a message naming the path and the
 // problem, and the server goes on with the map it had. Devices notice a load
-// by the map epoch of their next local graph.
+// by the map epoch of their next local graph. The map is also saved every
+// autosave_period seconds and when the server shuts down (autosave_file).
 #include <cstdlib>
 #include <memory>
 #include <string>
@@ -27,6 +28,8 @@ class MapStorageNodelet : public nodelet::Nodelet {
   ~MapStorageNodelet() override {
     save_srv_.shutdown();
     load_srv_.shutdown();
+    autosave_timer_.stop();
+    autosave("on shutdown");
   }
 
  private:
@@ -51,6 +54,29 @@ class MapStorageNodelet : public nodelet::Nodelet {
     save_srv_ = nh.advertiseService(ecar_bridge::kSaveMapService, &MapStorageNodelet::onSave, this);
     load_srv_ = nh.advertiseService(ecar_bridge::kLoadMapService, &MapStorageNodelet::onLoad, this);
     NODELET_INFO("map storage: %s, %s", ecar_bridge::kSaveMapService, ecar_bridge::kLoadMapService);
+    autosave_path_ = config.autosavePath();
+    if (!autosave_path_.empty()) {
+      autosave_timer_ = nh.createWallTimer(ros::WallDuration(config.autosave_period),
+                                           [this](const ros::WallTimerEvent&) {
+                                             autosave("periodic");
+                                           });
+      NODELET_INFO("autosave: every %.0f s and on shutdown to '%s'", config.autosave_period,
+                   autosave_path_.c_str());
+    }
+  }
+
+  // Saves the map to the autosave file (nothing before a device connected).
+  void autosave(const char* when) {
+    if (autosave_path_.empty() || !graph_ || !graph_->slam()) return;
+    try {
+      const ecar::MapCounts c = graph_->save(autosave_path_);
+      NODELET_DEBUG("autosave (%s): %s", when, describe(c).c_str());
+      if (!autosaved_) NODELET_INFO("autosave (%s): %s to '%s'", when, describe(c).c_str(),
+                                    autosave_path_.c_str());
+      autosaved_ = true;
+    } catch (const std::exception& e) {
+      NODELET_ERROR("autosave (%s) failed: %s", when, e.what());
+    }
   }
 
   bool onSave(ecar_msgs::SaveMap::Request& req, ecar_msgs::SaveMap::Response& res) {
@@ -119,6 +145,9 @@ class MapStorageNodelet : public nodelet::Nodelet {
 
   std::shared_ptr<ecar::GlobalGraph> graph_;
   ros::ServiceServer save_srv_, load_srv_;
+  ros::WallTimer autosave_timer_;
+  std::string autosave_path_;
+  bool autosaved_ = false;
 };
 
 }  // namespace ecar_server

@@ -58,6 +58,11 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("camera_tolerance", &c.camera_tolerance);
   r.read("map_file", &c.map_file);
   c.map_file = expandHome(c.map_file);
+  r.read("autosave_file", &c.autosave_file);
+  if (c.autosave_file != "auto" && c.autosave_file != "none") {
+    c.autosave_file = expandHome(c.autosave_file);
+  }
+  r.read("autosave_period", &c.autosave_period);
 
   ecar::PlaneConfig& p = c.planes;
   ecar_bridge::ParamReader& planes = r.child("planes");

@@ -88,7 +88,42 @@ TEST(ServerConfigTest, InvalidValuesNameTheirKey) {
   c = ServerConfig();
   c.plane_resend_offset = -1.0;
   expectKey(c, "planes/resend");
+  c = ServerConfig();
+  c.autosave_period = 0.1;
+  expectKey(c, "autosave_period");
+  c = ServerConfig();
+  c.loop_min_inliers = 3;
+  expectKey(c, "loop_min_inliers");
+  c = ServerConfig();
+  c.odometry_sigma_min = 0.0;
+  expectKey(c, "odometry_sigma_min");
   EXPECT_FALSE(ServerConfig().slamConfig().synchronous_mapping);
+}
+
+TEST(ServerConfigTest, AutosaveGoesBesideTheDatabaseUnlessSaidOtherwise) {
+  ServerConfig c;
+  c.vo.database_path = "/var/lib/ecar/vo.sqlite";
+  EXPECT_EQ(c.autosavePath(), "/var/lib/ecar/vo.autosave.ecarmap");
+  c.vo.database_path = ":memory:";
+  EXPECT_EQ(c.autosavePath(), "");  // nothing on disk to sit beside
+  c.autosave_file = "/tmp/x.ecarmap";
+  EXPECT_EQ(c.autosavePath(), "/tmp/x.ecarmap");
+  c.autosave_file = "none";
+  c.vo.database_path = "/var/lib/ecar/vo.sqlite";
+  EXPECT_EQ(c.autosavePath(), "");
+}
+
+TEST(ServerConfigTest, SlamKeysReachTheCore) {
+  ServerConfig c;
+  c.loop_closing = false;
+  c.loop_min_inliers = 55;
+  c.loop_global_ba = false;
+  c.odometry_sigma_fraction = 0.05;
+  const ecar::SlamConfig slam = c.slamConfig();
+  EXPECT_FALSE(slam.loops.enabled);
+  EXPECT_EQ(slam.loops.min_inliers, 55);
+  EXPECT_FALSE(slam.loops.global_ba);
+  EXPECT_DOUBLE_EQ(slam.odometry_sigma_fraction, 0.05);
 }
 
 TEST(ServerConfigTest, CoreConfigsCarryTheKeys) {

@@ -327,12 +327,13 @@ def floor_line(graph, plane, camera, u, v, half_length=0.2):
 class Server:
     """server.launch run by the test (so that it can kill -9 it)."""
 
-    def __init__(self, database, vo_attach="grid", map_file="", vo_share="graph"):
+    def __init__(self, database, vo_attach="grid", map_file="", vo_share="graph",
+                 autosave_period=""):
         root = os.path.join(rospkg.RosPack().get_path("ecar_server"), "..", "..")
         self.proc = subprocess.Popen(
             ["roslaunch", os.path.join(root, "launch", "server.launch"), "output:=log",
              "database:=" + database, "vo_attach:=" + vo_attach, "map:=" + map_file,
-             "vo_share:=" + vo_share],
+             "vo_share:=" + vo_share, "autosave_period:=" + autosave_period],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
     def manager_pid(self):
@@ -775,7 +776,8 @@ class ServerTest(unittest.TestCase):
 
     def map_session(self, folder, servers):
         map_file = os.path.join(folder, "session.ecarmap")
-        servers.append(Server(os.path.join(folder, "first.sqlite")))
+        # Autosaves every 2 s beside its database (first.autosave.ecarmap).
+        servers.append(Server(os.path.join(folder, "first.sqlite"), autosave_period="2"))
         device = FakeDevice("device_0", self.dataset)
         self.assertTrue(device.connect().accepted)
         self.assertTrue(wait_subscribed(device.pub))
@@ -835,8 +837,15 @@ class ServerTest(unittest.TestCase):
         if moved:
             print("[map] refinement since first tracked: max %.2f cm" % (100 * max(moved)))
         before = refined
+        time.sleep(2.5)  # one more autosave, with the object
         servers[0].kill9()
         self.assertTrue(wait_service_gone("/ecar/connect"))
+        # What the killed server autosaved: a whole map file with the planes and the object.
+        autosaved = os.path.join(folder, "first.autosave.ecarmap")
+        self.assertTrue(os.path.exists(autosaved), "no autosave after kill -9")
+        self.assertEqual(len(saved_planes(autosaved)), saved.planes)
+        print("[map] autosave after kill -9: %d bytes, %d planes" % (os.path.getsize(autosaved),
+                                                                     saved.planes))
 
         # A fresh server on an empty database, resuming the saved map.
         servers.append(Server(os.path.join(folder, "second.sqlite"), map_file=map_file))
@@ -880,9 +889,13 @@ class ServerTest(unittest.TestCase):
         self.check_structure(graphs, planes, floor, obj, vo_id, "load_map while running",
                              False)
 
-        # The loaded object is in the new server's database (kill -9 keeps it).
-        servers[1].kill9()
+        # A clean shutdown autosaves the map (the period, 60 s, has not come
+        # yet), and the loaded object is in the new server's database.
+        servers[1].stop()
         self.assertTrue(wait_service_gone("/ecar/connect"))
+        autosaved = os.path.join(folder, "second.autosave.ecarmap")
+        self.assertTrue(os.path.exists(autosaved), "no autosave on shutdown")
+        self.assertEqual(len(saved_planes(autosaved)), len(planes))
         db = sqlite3.connect(os.path.join(folder, "second.sqlite"))
         try:
             rows = db.execute("SELECT version, deleted FROM objects WHERE id = ?",

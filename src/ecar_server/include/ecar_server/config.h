@@ -103,6 +103,14 @@ struct ServerConfig {
 
   /// A map file (written by /ecar/save_map) to load at startup; "" = none.
   std::string map_file;
+  /// Autosave of the whole map: "auto" = beside the VO database
+  /// (<dir>/<stem>.autosave.ecarmap; none for an in-memory database), "none"
+  /// = off, or a path. Written atomically every autosave_period s and when
+  /// the server shuts down.
+  std::string autosave_file = "auto";
+  double autosave_period = 60.0;  ///< s
+  /// The autosave path autosave_file stands for ("" = off).
+  std::string autosavePath() const;
 
   /// Throws ecar::Error naming the first invalid key.
   void validate() const;
