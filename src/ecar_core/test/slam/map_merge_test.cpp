@@ -1,0 +1,128 @@
+// Merging maps: a map of the corridor and the same map as another device's
+// SLAM would have made it (another coordinate system and scale, other ids) are
+// merged through the similarity between them; every pair of duplicate points
+// becomes one, and the covisibility graph is welded across the seam.
+#include "ecar_core/slam/map_merge.h"
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "ecar_core/common/error.h"
+#include "ecar_core/sim/motion.h"
+#include "ecar_core/sim/renderer.h"
+#include "ecar_core/slam/pose_graph.h"
+#include "ecar_core/slam/slam_system.h"
+
+namespace ecar {
+namespace {
+
+const std::string kScenes = ECAR_REPO_ROOT "/config/scenes";
+
+// The SLAM's map of the first 30 uploads of the corridor's device_0.
+std::unique_ptr<SlamSystem> corridorMap() {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto motion = generateMotion(scene, scene.device("device_0"), scene.camera.fps);
+  auto slam = std::make_unique<SlamSystem>(renderer.camera());
+  RenderOptions opt;
+  RenderOutput r;
+  for (size_t i = 0; i < motion.size() && i < 120; i += 4) {
+    opt.noise_seed = static_cast<uint32_t>(i);
+    renderer.render(motion[i].T_w_c, opt, &r);
+    slam->track(DeviceId(1), r.image, motion[i].timestamp, static_cast<uint32_t>(i),
+                motion[i].gravity_c, motion[i].T_o_c);
+  }
+  return slam;
+}
+
+// `map` as seen from another frame: ids moved up by `offset`, positions through T
+// (the other map's world = T * this world).
+std::unique_ptr<Map> copyOf(const Map& map, uint32_t offset, const Sim3& T) {
+  auto copy = std::make_unique<Map>(map.scale());
+  const Sim3 T_inverse = T.inverse();
+  for (const KeyFrameId id : map.keyframeIds()) {
+    KeyFrame kf = *map.keyframe(id);
+    kf.id = KeyFrameId(id.value + offset);
+    kf.T_c_w = metricPose(similarityOf(kf.T_c_w) * T_inverse);
+    kf.covisibility.clear();
+    for (MapPointId& p : kf.points) {
+      if (p.valid()) p = MapPointId(p.value + offset);
+    }
+    copy->insertKeyFrame(std::move(kf));
+  }
+  for (const MapPointId id : map.pointIds()) {
+    MapPoint p = *map.point(id);
+    p.id = MapPointId(id.value + offset);
+    p.p_w = T * p.p_w;
+    p.reference = KeyFrameId(p.reference.value + offset);
+    p.first_keyframe = KeyFrameId(p.first_keyframe.value + offset);
+    std::map<KeyFrameId, int> observations;
+    for (const auto& [k, idx] : p.observations) observations[KeyFrameId(k.value + offset)] = idx;
+    p.observations = std::move(observations);
+    copy->insertPoint(std::move(p));
+  }
+  copy->setCounters(KeyFrameId(map.nextKeyFrameId().value + offset),
+                    MapPointId(map.nextPointId().value + offset), 1);
+  for (const KeyFrameId id : copy->keyframeIds()) copy->updateCovisibility(id);
+  return copy;
+}
+
+TEST(MapMergeTest, TwoMapsOfOnePlaceBecomeOne) {
+  const std::unique_ptr<SlamSystem> slam = corridorMap();
+  Map& a = slam->map();
+  auto lock_a = a.writeLock();
+  ASSERT_GE(a.numKeyFrames(), 5u);
+  ASSERT_EQ(a.checkConsistency(), "");
+  const size_t keyframes = a.numKeyFrames(), points = a.numPoints();
+  Sim3 T;  // the other map's frame: turned, shifted, 1.7 times larger
+  T.scale = 1.7;
+  T.R = expSO3(Eigen::Vector3d(0.2, -0.1, 1.3));
+  T.t = Eigen::Vector3d(4.0, -2.0, 0.5);
+  const uint32_t offset = 100000;
+  std::unique_ptr<Map> b = copyOf(a, offset, T);
+  ASSERT_EQ(b->checkConsistency(), "");
+  // Every point is seen in both maps (place recognition would find a subset).
+  std::vector<std::pair<MapPointId, MapPointId>> duplicates;
+  for (const MapPointId id : a.pointIds()) {
+    duplicates.emplace_back(MapPointId(id.value + offset), id);
+  }
+  const MergeResult r = mergeMaps(&a, b.get(), T.inverse(), duplicates);
+  EXPECT_EQ(r.keyframes_moved, keyframes);
+  EXPECT_EQ(r.points_moved, points);
+  EXPECT_EQ(r.points_fused, points);
+  EXPECT_EQ(b->numKeyFrames(), 0u);
+  EXPECT_EQ(a.numKeyFrames(), 2 * keyframes);
+  EXPECT_EQ(a.numPoints(), points);  // one point per physical point
+  EXPECT_EQ(a.checkConsistency(), "");
+  EXPECT_GT(a.nextKeyFrameId().value, offset);
+  for (const KeyFrameId id : slam->map().keyframeIds()) {
+    if (id.value >= offset) continue;
+    const KeyFrame* original = a.keyframe(id);
+    const KeyFrame* moved = a.keyframe(KeyFrameId(id.value + offset));
+    ASSERT_NE(moved, nullptr);
+    // The moved keyframe is where its twin is, and the seam is welded: the
+    // twins share every point.
+    EXPECT_LT((moved->center() - original->center()).norm(), 1e-9) << id;
+    EXPECT_LT(logSO3(moved->T_c_w.linear().transpose() * original->T_c_w.linear()).norm(), 1e-9);
+    const auto link = moved->covisibility.find(id);
+    ASSERT_NE(link, moved->covisibility.end()) << "keyframe " << id << " not welded";
+    EXPECT_GE(link->second, original->numTrackedPoints() / 2);
+    EXPECT_EQ(r.correction.of(moved->id).scale, T.inverse().scale);
+  }
+  EXPECT_FALSE(r.seam.empty());
+  EXPECT_TRUE(r.correction.of(KeyFrameId(1)).R.isIdentity());  // the kept map did not move
+
+  // Maps sharing an id are refused before anything moves.
+  std::unique_ptr<Map> clash = copyOf(a, 0, T);
+  auto lock_clash = clash->writeLock();
+  try {
+    mergeMaps(&a, clash.get(), T.inverse(), {});
+    ADD_FAILURE() << "merged maps sharing ids";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("in both maps"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(clash->numKeyFrames(), 2 * keyframes);
+}
+
+}  // namespace
+}  // namespace ecar
