@@ -3,7 +3,7 @@
 //   ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]
 //                     [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]
 //                     [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]
-//                     [--gravity-sigma DEG] [--odometry-sigma F] [--no-loops]
+//                     [--gravity-sigma DEG] [--odometry-sigma F] [--no-loops] [--atlas]
 //
 // Every Nth frame of each dataset is (optionally) JPEG-compressed at quality Q,
 // decoded, and tracked; several datasets run interleaved by time into one map,
@@ -47,6 +47,7 @@
 #include "ecar_core/eval/trajectory_eval.h"
 #include "ecar_core/io/dataset.h"
 #include "ecar_core/io/trajectory.h"
+#include "ecar_core/slam/atlas.h"
 #include "ecar_core/slam/slam_system.h"
 
 namespace {
@@ -63,6 +64,7 @@ struct Args {
   bool use_odometry = true;
   bool threads = false;
   bool loops = true;
+  bool atlas = false;
   bool verbose = false;
   bool sequential = false;
   int orb_features = 0;             // 0: the library default
@@ -74,7 +76,7 @@ void usage(std::ostream& os) {
   os << "usage: ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]\n"
         "         [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]\n"
         "         [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]\n"
-        "         [--gravity-sigma DEG] [--odometry-sigma F] [--no-loops]\n"
+        "         [--gravity-sigma DEG] [--odometry-sigma F] [--no-loops] [--atlas]\n"
         "  --every N         track every Nth frame (the server sees every 4th)\n"
         "  --jpeg-quality Q  JPEG-compress each image at quality Q (1-100) first\n"
         "  --frames N        only the first N frames of each dataset\n"
@@ -87,6 +89,9 @@ void usage(std::ostream& os) {
         "  --orb-features N  ORB keypoints per image (default 1000; large images want more)\n"
         "  --gravity-sigma D gravity prior of local BA, degrees (0: off; default 0.3)\n"
         "  --no-loops        no loop closing (the figure without closing, beside it)\n"
+        "  --atlas           several maps: a device that matches no map starts its own at once\n"
+        "                    (and after being lost for 8 uploads); maps merge when they overlap\n"
+        "                    (default: one map, later devices join it)\n"
         "  --odometry-sigma F odometry edges of local BA in metric maps, sigma as a fraction\n"
         "                    of the distance (0: off; default 0.02)\n";
 }
@@ -131,6 +136,8 @@ Args parse(int argc, char** argv) {
       a.summary = value();
     } else if (k == "--no-odometry") {
       a.use_odometry = false;
+    } else if (k == "--atlas") {
+      a.atlas = true;
     } else if (k == "--no-loops") {
       a.loops = false;
     } else if (k == "--threads") {
@@ -197,9 +204,11 @@ struct DeviceRun {
   size_t next = 0;
   int tracked = 0, init_upload = -1, joined_upload = -1, relocalisations = 0;
   int first_overlap_upload = -1;
-  double overlap_range_m = 0.0;      ///< the distance limit of first_overlap_upload
-  ecar::Trajectory estimate, truth;  // tracked uploads with ground truth
+  double overlap_range_m = 0.0;           ///< the distance limit of first_overlap_upload
+  ecar::Trajectory estimate, truth;       // tracked uploads with ground truth
+  std::vector<ecar::MapId> estimate_map;  // the map each estimate is in
   ecar::Trajectory all_estimates;
+  int first_tracked_upload = -1;
 };
 
 std::string deviceTrajectoryPath(const std::string& out, size_t device, size_t count) {
@@ -294,11 +303,18 @@ int run(const Args& args) {
   if (args.gravity_sigma_deg >= 0.0) config.ba.gravity_sigma_deg = args.gravity_sigma_deg;
   if (args.odometry_sigma >= 0.0) config.odometry_sigma_fraction = args.odometry_sigma;
   config.loops.enabled = args.loops;
-  // Each device with its own camera (its dataset's camera.yaml).
-  ecar::SlamSystem slam(runs.front().dataset.camera(), config);
-  for (size_t d = 0; d < runs.size(); ++d) {
-    slam.setCamera(ecar::DeviceId(static_cast<uint32_t>(d + 1)), runs[d].dataset.camera());
+  // An atlas of maps; each device with its own camera (its dataset's camera.yaml).
+  ecar::AtlasConfig atlas_config;
+  if (!args.atlas) {
+    atlas_config.several_maps = false;
+    atlas_config.merge = false;
   }
+  ecar::Atlas atlas(runs.front().dataset.camera(), config, atlas_config);
+  for (size_t d = 0; d < runs.size(); ++d) {
+    atlas.setCamera(ecar::DeviceId(static_cast<uint32_t>(d + 1)), runs[d].dataset.camera());
+  }
+  // Which upload of which device found each merge and each loop.
+  std::vector<std::pair<size_t, int>> merge_found_by, loop_found_by;
   bool metric = args.use_odometry;
   for (const auto& r : runs) {
     if (r.dataset.size() == 0 || !r.dataset.frame(0).T_o_c_odom) metric = false;
@@ -340,9 +356,16 @@ int run(const Args& args) {
       image = cv::imdecode(jpeg, cv::IMREAD_GRAYSCALE);
     }
     const std::optional<ecar::SE3> odom = metric ? f.T_o_c_odom : std::optional<ecar::SE3>();
+    ecar::MapId map_id;
+    const size_t merges_before = atlas.merges().size();
+    const size_t loops_before = atlas.loopClosures().size();
     const ecar::TrackResult res =
-        slam.track(ecar::DeviceId(static_cast<uint32_t>(d + 1)), image, f.timestamp,
-                   static_cast<uint32_t>(index), f.gravity_c, odom);
+        atlas.track(ecar::DeviceId(static_cast<uint32_t>(d + 1)), image, f.timestamp,
+                    static_cast<uint32_t>(index), f.gravity_c, odom, &map_id);
+    for (size_t m = merges_before; m < atlas.merges().size(); ++m)
+      merge_found_by.emplace_back(d, upload);
+    for (size_t l = loops_before; l < atlas.loopClosures().size(); ++l)
+      loop_found_by.emplace_back(d, upload);
     if (args.verbose) {
       std::fprintf(stderr, "[slam] %s upload %d frame %zu: %s, %zu points%s%s\n", r.name.c_str(),
                    upload, index, ecar::toString(res.state), res.tracked.size(),
@@ -357,26 +380,62 @@ int run(const Args& args) {
     }
     if (res.state == ecar::TrackingState::kOk) {
       ++r.tracked;
+      if (r.first_tracked_upload < 0) r.first_tracked_upload = upload;
       r.all_estimates.push_back({f.timestamp, res.T_w_c});
       if (f.T_w_c_gt) {
         r.estimate.push_back({f.timestamp, res.T_w_c});
+        r.estimate_map.push_back(map_id);
         r.truth.push_back({f.timestamp, *f.T_w_c_gt});
       }
     }
     if (step % 20 == 0 || step + 1 == total_uploads) {
-      std::fprintf(stderr, "\r[slam] upload %zu/%zu  %s  kf %zu  points %zu   ", step + 1,
-                   total_uploads, ecar::toString(res.state), slam.map().numKeyFrames(),
-                   slam.map().numPoints());
+      std::fprintf(stderr, "\r[slam] upload %zu/%zu  %s  maps %zu   ", step + 1, total_uploads,
+                   ecar::toString(res.state), atlas.mapIds().size());
     }
   }
   std::fprintf(stderr, "\n");
-  slam.mapper().stopThread();
-  slam.mapper().processPending();
-  slam.loopCloser().stopThread();
-  slam.loopCloser().processPending();
+  atlas.finish();
   const double wall_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
-
+  // The map the evaluation is in: the first device's at the end (the largest
+  // when it has none); estimates made in maps merged into it are moved into
+  // its frame with the merges' similarities, those of other maps left out.
+  ecar::MapId main_map = atlas.finalFrameOf(atlas.mapOf(ecar::DeviceId(1))).first;
+  if (!atlas.map(main_map)) {
+    size_t best = 0;
+    for (const ecar::MapId id : atlas.mapIds()) {
+      const auto m = atlas.map(id);
+      auto lock = m->map().readLock();
+      if (m->map().numKeyFrames() >= best) {
+        best = m->map().numKeyFrames();
+        main_map = id;
+      }
+    }
+  }
+  const std::shared_ptr<ecar::SlamSystem> main_slam = atlas.map(main_map);
+  if (!main_slam) throw ecar::Error("no map was made");
+  ecar::SlamSystem& slam = *main_slam;
+  size_t outside_main = 0;
+  for (DeviceRun& r : runs) {
+    ecar::Trajectory estimate, truth;
+    for (size_t i = 0; i < r.estimate.size(); ++i) {
+      const auto [final_map, S] = atlas.finalFrameOf(r.estimate_map[i]);
+      if (final_map != main_map) {
+        ++outside_main;
+        continue;
+      }
+      ecar::StampedPose p = r.estimate[i];
+      p.T_w_c = S.transformPose(p.T_w_c);
+      estimate.push_back(p);
+      truth.push_back(r.truth[i]);
+    }
+    r.estimate = std::move(estimate);
+    r.truth = std::move(truth);
+  }
+  if (outside_main > 0) {
+    std::printf("%zu tracked uploads are in maps never merged into the first device's (left out)\n",
+                outside_main);
+  }
   // ATE: one transform for every device (they share the map).
   std::vector<Eigen::Vector3d> est_all, gt_all;
   for (const auto& r : runs) {
@@ -451,7 +510,7 @@ int run(const Args& args) {
          {"uploads", r.uploads.size()},
          {"tracked", r.tracked},
          {"init_upload", r.init_upload},
-         {"first_tracked_upload", r.init_upload >= 0 ? r.init_upload : r.joined_upload},
+         {"first_tracked_upload", r.first_tracked_upload},
          {"init_frame", r.init_upload >= 0 ? static_cast<int>(r.uploads[r.init_upload]) : -1},
          {"joined_upload", r.joined_upload},
          {"first_overlap_upload", r.first_overlap_upload},
@@ -550,23 +609,33 @@ int run(const Args& args) {
   summary["wall_s"] = wall_s;
   // Loops closed: at which upload of which device, with how many inliers, and
   // what it cost (detection, pose graph and correction, global BA).
-  summary["maps"] = 1;
+  summary["maps"] = atlas.mapIds().size();
   summary["merges"] = nlohmann::json::array();
+  const std::vector<ecar::MergeEvent> merges = atlas.merges();
+  for (size_t k = 0; k < merges.size(); ++k) {
+    const ecar::MergeEvent& m = merges[k];
+    const size_t d = k < merge_found_by.size() ? merge_found_by[k].first : m.device.value - 1;
+    const int upload = k < merge_found_by.size() ? merge_found_by[k].second : -1;
+    std::printf(
+        "maps merged: %s upload %d (keyframe %u) found map %u in map %u (keyframe %u), %d "
+        "inliers, scale %.4f; %zu keyframes moved, %zu points fused, %.1f ms\n",
+        d < runs.size() ? runs[d].name.c_str() : "?", upload, m.query.value, m.from.value,
+        m.into.value, m.match.value, m.inliers, m.scale, m.keyframes_moved, m.points_fused, m.ms);
+    summary["merges"].push_back({{"upload", upload},
+                                 {"device", d < runs.size() ? runs[d].name : "?"},
+                                 {"inliers", m.inliers},
+                                 {"ms", m.ms},
+                                 {"into", m.into.value},
+                                 {"from", m.from.value},
+                                 {"scale", m.scale}});
+  }
+  std::printf("maps at the end: %zu\n", atlas.mapIds().size());
   summary["loop_closures"] = nlohmann::json::array();
-  for (const ecar::LoopClosure& l : slam.loopCloser().closures()) {
-    int upload = -1;
-    const size_t d = l.device.value - 1;
-    uint32_t frame = 0;
-    {
-      auto lock = slam.map().readLock();
-      // The keyframe may be culled by now; its frame index was recorded by the device run.
-      if (const ecar::KeyFrame* kf = slam.map().keyframe(l.query)) frame = kf->frame_index;
-    }
-    if (d < runs.size()) {
-      const auto& ups = runs[d].uploads;
-      const auto it = std::find(ups.begin(), ups.end(), frame);
-      if (it != ups.end()) upload = static_cast<int>(it - ups.begin());
-    }
+  const std::vector<ecar::LoopClosure> loops = atlas.loopClosures();
+  for (size_t k = 0; k < loops.size(); ++k) {
+    const ecar::LoopClosure& l = loops[k];
+    const size_t d = k < loop_found_by.size() ? loop_found_by[k].first : l.device.value - 1;
+    const int upload = k < loop_found_by.size() ? loop_found_by[k].second : -1;
     std::printf(
         "loop closed: %s upload %d (keyframe %u) with keyframe %u, %d inliers, similarity scale "
         "%.4f, the keyframe moved %.3f m; detect %.1f ms, correct %.1f ms (%zu keyframes, %zu "

@@ -25,6 +25,7 @@ using MapPointId = Id<struct MapPointTag>;
 using PlaneId = Id<struct PlaneTag>;
 using ObjectId = Id<struct ObjectTag>;
 using DeviceId = Id<struct DeviceTag>;
+using MapId = Id<struct MapTag>;  ///< a map of the atlas
 
 /// A grid cell on the structure planes: (floor(X / cell), floor(Y / cell),
 /// floor(Z / cell)) of a map point (X, Y, Z) for the grid's cell size (0.1 m).

@@ -9,6 +9,7 @@
 #include "ecar_core/slam/local_mapper.h"
 #include "ecar_core/slam/matcher.h"
 #include "ecar_core/slam/optimizer.h"
+#include "ecar_core/slam/place_verification.h"
 #include "ecar_core/slam/pose_graph.h"
 #include "ecar_core/slam/sim3_solver.h"
 
@@ -19,14 +20,6 @@ double msSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
       .count();
 }
-
-/// A map point as the matching sees it.
-struct PointView {
-  MapPointId id;
-  Eigen::Vector3d p_w;
-  const uint8_t* descriptor;  ///< valid while the read lock is held
-  KeyFrameId keyframe;        ///< source side: the keyframe whose keypoint saw it
-};
 
 }  // namespace
 
@@ -168,7 +161,6 @@ bool LoopCloser::detect(KeyFrameId kf, Candidate* out, LoopClosure* report) {
   const LoopClosingConfig& c = config_.loops;
   cv::Mat descriptors;
   std::unordered_set<KeyFrameId> excluded;
-  std::vector<KeyFrameId> query_side;
   {
     auto lock = map_->readLock();
     const KeyFrame* k = map_->keyframe(kf);
@@ -177,8 +169,6 @@ bool LoopCloser::detect(KeyFrameId kf, Candidate* out, LoopClosure* report) {
     descriptors = k->features.descriptors;
     excluded.insert(kf);
     for (const KeyFrameId n : map_->bestCovisible(kf, c.covisible_excluded)) excluded.insert(n);
-    query_side.push_back(kf);
-    for (const KeyFrameId n : map_->bestCovisible(kf, c.query_neighbours)) query_side.push_back(n);
   }
   const std::vector<PlaceCandidate> candidates =
       index_->query(descriptors, static_cast<size_t>(c.covisible_excluded) + 3 * c.candidates, 0.0);
@@ -190,80 +180,20 @@ bool LoopCloser::detect(KeyFrameId kf, Candidate* out, LoopClosure* report) {
       continue;
     }
     ++tried;
-    std::vector<PointPair> pairs;
-    std::vector<std::pair<MapPointId, MapPointId>> ids;
-    std::vector<KeyFrameId> source_keyframes;
-    {
-      auto lock = map_->readLock();
-      const KeyFrame* m = map_->keyframe(pc.keyframe);
-      if (!m) continue;
-      const Eigen::Vector3d centre = m->center();
-      // The candidate's side: its points and its neighbours' (not the current side's).
-      std::vector<PointView> targets;
-      std::unordered_set<MapPointId> target_ids;
-      std::vector<KeyFrameId> match_side = {pc.keyframe};
-      for (const KeyFrameId n : map_->bestCovisible(pc.keyframe, c.candidate_neighbours)) {
-        if (!excluded.count(n)) match_side.push_back(n);
-      }
-      for (const KeyFrameId id : match_side) {
-        for (const MapPointId pid : map_->keyframe(id)->points) {
-          const MapPoint* p = map_->point(pid);
-          if (!p || p->descriptor.empty() || !target_ids.insert(pid).second) continue;
-          targets.push_back({pid, p->p_w, p->descriptor.ptr<uint8_t>(0), id});
-        }
-      }
-      // The current side: each of its keypoints with a point not seen on the other side.
-      std::unordered_set<MapPointId> source_ids;
-      for (const KeyFrameId id : query_side) {
-        const KeyFrame* q = map_->keyframe(id);
-        if (!q) continue;
-        for (size_t i = 0; i < q->points.size(); ++i) {
-          const MapPoint* p = map_->point(q->points[i]);
-          if (!p || target_ids.count(p->id) || !source_ids.insert(p->id).second) continue;
-          const uint8_t* d = q->features.descriptors.ptr<uint8_t>(static_cast<int>(i));
-          int best = 256, second = 256, best_index = -1;
-          for (size_t t = 0; t < targets.size(); ++t) {
-            const int dist = descriptorDistance(d, targets[t].descriptor);
-            if (dist < best) {
-              second = best;
-              best = dist;
-              best_index = static_cast<int>(t);
-            } else if (dist < second) {
-              second = dist;
-            }
-          }
-          if (best_index < 0 || best > kDescriptorThresholdLow || best >= c.ratio * second)
-            continue;
-          const PointView& t = targets[best_index];
-          pairs.push_back({p->p_w, t.p_w, c.tolerance_fraction * (t.p_w - centre).norm() + 0.01});
-          ids.emplace_back(p->id, t.id);
-          source_keyframes.push_back(id);
-        }
-      }
-    }
-    if (static_cast<int>(pairs.size()) < c.min_inliers) continue;
-    Sim3EstimateConfig sc;
-    sc.min_inliers = c.min_inliers;
-    sc.seed = kf.value;
-    const Sim3Estimate e = estimateSim3(pairs, sc);
-    if (!e.success) continue;
-    std::unordered_set<KeyFrameId> seen_by;
+    const std::optional<PlaceMatch> m =
+        verifyPlace(*map_, kf, *map_, pc.keyframe, excluded, c, false, kf.value);
+    if (!m) continue;
     Candidate cand;
-    for (size_t i = 0; i < pairs.size(); ++i) {
-      if (!e.inliers[i]) continue;
-      seen_by.insert(source_keyframes[i]);
-      cand.duplicates.push_back(ids[i]);
-    }
-    if (static_cast<int>(seen_by.size()) < c.min_inlier_keyframes) continue;
+    cand.duplicates = m->duplicates;
     cand.query = kf;
     cand.match = pc.keyframe;
-    cand.S = e.S;
-    cand.inliers = e.num_inliers;
+    cand.S = m->S;
+    cand.inliers = m->inliers;
     *out = std::move(cand);
     report->query = kf;
     report->match = pc.keyframe;
-    report->inliers = e.num_inliers;
-    report->scale = e.S.scale;
+    report->inliers = m->inliers;
+    report->scale = m->S.scale;
     return true;
   }
   return false;
@@ -397,6 +327,12 @@ MapCorrection LoopCloser::correct(const Candidate& cand, LoopClosure* report) {
   report->points_moved = correction.points_moved;
   report->correct_ms = msSince(t0);
   return correction;
+}
+
+double LoopCloser::bundleAdjustAll() {
+  LoopClosure report;
+  globalBundleAdjustment(&report);
+  return report.global_ba_ms;
 }
 
 void LoopCloser::globalBundleAdjustment(LoopClosure* report) {

@@ -69,6 +69,9 @@ class LoopCloser {
   /// closed and after each global BA, with what moved. Set before keyframes
   /// arrive; an empty function clears it.
   void setCorrectedCallback(std::function<void(const MapCorrection&)> callback);
+  /// A global bundle adjustment of the whole map now, on the caller's thread
+  /// (after a merge); returns its time (ms; 0 when nothing was adjusted).
+  double bundleAdjustAll();
 
  private:
   struct Candidate;

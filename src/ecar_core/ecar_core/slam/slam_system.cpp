@@ -110,11 +110,20 @@ void SlamSystem::installMap(std::unique_ptr<Map> map) {
   std::unique_lock<std::shared_mutex> session(session_mutex_);  // no track() runs
   mapper_.reset();
   loops_.reset();
-  std::vector<std::pair<KeyFrameId, cv::Mat>> descriptors;
-  std::vector<std::vector<int>> point_rows;
   {
     auto lock = map_.writeLock();
     map_.replaceWith(std::move(*map));
+  }
+  reindex();
+  std::lock_guard<std::mutex> lock(trackers_mutex_);
+  for (auto& kv : trackers_) kv.second->reset();
+}
+
+void SlamSystem::reindex() {
+  std::vector<std::pair<KeyFrameId, cv::Mat>> descriptors;
+  std::vector<std::vector<int>> point_rows;
+  {
+    auto lock = map_.readLock();
     for (const KeyFrameId id : map_.keyframeIds()) {
       const KeyFrame* kf = map_.keyframe(id);
       if (kf->features.descriptors.empty()) continue;
@@ -132,8 +141,6 @@ void SlamSystem::installMap(std::unique_ptr<Map> map) {
     index_.add(descriptors[k].first, descriptors[k].second);
     keypoint_index_.add(descriptors[k].first, descriptors[k].second, point_rows[k]);
   }
-  std::lock_guard<std::mutex> lock(trackers_mutex_);
-  for (auto& kv : trackers_) kv.second->reset();
 }
 
 }  // namespace ecar

@@ -91,11 +91,15 @@ class SlamSystem {
   /// every tracker so that it relocalises against the new map. Not from the
   /// mapped callback (it may run inside track()).
   void installMap(std::unique_ptr<Map> map);
+  /// Rebuilds the place and keypoint indexes from the map (after keyframes
+  /// were moved in from another map). Not while keyframes are being added.
+  void reindex();
 
   Map& map() { return map_; }
   const Map& map() const { return map_; }
   LocalMapper& mapper() { return mapper_; }
   LoopCloser& loopCloser() { return loops_; }
+  const PlaceIndex& placeIndex() const { return index_; }
   /// The default camera (of devices with none of their own).
   const PinholeCamera& camera() const { return *camera_; }
 

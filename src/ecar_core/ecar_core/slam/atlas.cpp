@@ -1,0 +1,377 @@
+#include "ecar_core/slam/atlas.h"
+
+#include <algorithm>
+#include <chrono>
+#include <map>
+
+#include "ecar_core/slam/map_merge.h"
+#include "ecar_core/slam/place_verification.h"
+#include "ecar_core/slam/sim3_solver.h"
+
+namespace ecar {
+namespace {
+
+bool initialised(const SlamSystem& slam) {
+  auto lock = slam.map().readLock();
+  return slam.map().initialized();
+}
+
+}  // namespace
+
+Atlas::Atlas(const PinholeCamera& camera, const SlamConfig& config, const AtlasConfig& atlas)
+    : camera_(camera), config_(config), atlas_(atlas) {}
+
+Atlas::~Atlas() { finish(); }
+
+void Atlas::finish() {
+  std::vector<std::shared_ptr<SlamSystem>> maps;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const Entry& e : maps_) maps.push_back(e.slam);
+  }
+  for (const auto& s : maps) {
+    s->mapper().stopThread();
+    s->mapper().processPending();
+    s->loopCloser().stopThread();
+    s->loopCloser().processPending();
+  }
+}
+
+void Atlas::setCamera(DeviceId device, const PinholeCamera& camera) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  cameras_.insert_or_assign(device, camera);
+  for (const Entry& e : maps_) e.slam->setCamera(device, camera);
+}
+
+std::shared_ptr<SlamSystem> Atlas::slamOf(MapId id) const {
+  for (const Entry& e : maps_) {
+    if (e.id == id) return e.slam;
+  }
+  return nullptr;
+}
+
+MapId Atlas::newMap() {
+  const MapId id(next_map_++);
+  auto slam = std::make_shared<SlamSystem>(camera_, config_);
+  {
+    // Disjoint id ranges: a merge moves keyframes and points as they are.
+    const uint32_t base = (id.value - 1) * atlas_.id_range + 1;
+    auto lock = slam->map().writeLock();
+    slam->map().setCounters(KeyFrameId(base), MapPointId(base), slam->map().epoch());
+  }
+  for (const auto& [device, camera] : cameras_) slam->setCamera(device, camera);
+  maps_.push_back({id, std::move(slam)});
+  return id;
+}
+
+TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp,
+                         uint32_t frame_index, const std::optional<Eigen::Vector3d>& gravity_c,
+                         const std::optional<SE3>& T_o_c, MapId* map) {
+  *map = MapId();
+  TrackResult result;
+  std::optional<std::pair<MapId, KeyFrameId>> new_keyframe;
+  std::optional<MergeCandidate> found;
+  {
+    std::shared_lock<std::shared_mutex> session(session_mutex_);
+    MapId current_id, fresh_id;
+    std::shared_ptr<SlamSystem> current, fresh;
+    std::vector<std::pair<MapId, std::shared_ptr<SlamSystem>>> others;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      Device& d = devices_[device];
+      if (!d.current.valid() && !d.fresh.valid()) {
+        // The first device makes the first map; later ones start their own at
+        // once while they try to relocalise into the others.
+        if (maps_.empty()) {
+          d.current = newMap();
+        } else if (!atlas_.several_maps) {
+          d.current = maps_.front().id;
+        } else {
+          d.fresh = newMap();
+        }
+      } else if (atlas_.several_maps && d.current.valid() && !d.fresh.valid() &&
+                 atlas_.new_map_after_lost > 0 && d.lost >= atlas_.new_map_after_lost) {
+        d.fresh = newMap();  // lost for long: somewhere new
+      }
+      current_id = d.current;
+      fresh_id = d.fresh;
+      current = slamOf(current_id);
+      fresh = slamOf(fresh_id);
+      for (const Entry& e : maps_) {
+        if (e.id != current_id && e.id != fresh_id) others.emplace_back(e.id, e.slam);
+      }
+    }
+    const auto track_in = [&](SlamSystem& s) {
+      return s.track(device, image, timestamp, frame_index, gravity_c, T_o_c);
+    };
+    // Settles the device in `id` and drops its fresh map if nothing was made in it.
+    const auto settle = [&](MapId id, const TrackResult& r) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      Device& d = devices_[device];
+      if (d.fresh.valid() && d.fresh != id) {
+        const std::shared_ptr<SlamSystem> f = slamOf(d.fresh);
+        if (f && !initialised(*f)) {
+          maps_.erase(std::remove_if(maps_.begin(), maps_.end(),
+                                     [&](const Entry& e) { return e.id == d.fresh; }),
+                      maps_.end());
+        }
+      }
+      d.fresh = MapId();
+      d.current = id;
+      d.lost = 0;
+      *map = id;
+      if (r.new_keyframe) new_keyframe.emplace(id, *r.new_keyframe);
+    };
+    bool done = false;
+    if (current) {
+      result = track_in(*current);
+      if (result.state == TrackingState::kOk) {
+        settle(current_id, result);
+        done = true;
+        if (atlas_.merge && atlas_.relocalise_every > 0) {
+          bool probe = false;
+          {
+            std::lock_guard<std::mutex> lock(mutex_);
+            probe = ++devices_[device].probes % atlas_.relocalise_every == 0;
+          }
+          for (const auto& [id, s] : others) {
+            if (!probe || found) break;
+            if (!initialised(*s)) continue;
+            found = relocalisedOverlap(current_id, *current, result, id, *s, track_in(*s), device);
+          }
+        }
+      } else {
+        std::lock_guard<std::mutex> lock(mutex_);
+        ++devices_[device].lost;
+      }
+    }
+    if (!done && fresh) {
+      for (const auto& [id, s] : others) {
+        if (!initialised(*s)) continue;
+        const TrackResult r = track_in(*s);
+        if (r.state == TrackingState::kOk) {
+          result = r;
+          settle(id, r);
+          done = true;
+          break;
+        }
+      }
+      if (!done) {
+        const TrackResult r = track_in(*fresh);
+        if (r.state == TrackingState::kOk) {
+          result = r;
+          settle(fresh_id, r);
+        } else if (!current) {
+          result = r;
+        }
+      }
+    }
+  }
+  if (found) {
+    std::unique_lock<std::shared_mutex> session(session_mutex_);
+    doMerge(*found, std::chrono::steady_clock::now());
+  } else if (new_keyframe && atlas_.merge) {
+    tryMerge(new_keyframe->first, new_keyframe->second, device);
+  }
+  return result;
+}
+
+std::optional<Atlas::MergeCandidate> Atlas::relocalisedOverlap(MapId a_id, const SlamSystem& a,
+                                                               const TrackResult& in_a, MapId b_id,
+                                                               const SlamSystem& b,
+                                                               const TrackResult& in_b,
+                                                               DeviceId device) const {
+  if (in_b.state != TrackingState::kOk) return std::nullopt;
+  // One image, one extractor: a keypoint matched in both maps is one point.
+  std::map<std::pair<float, float>, const TrackedPoint*> in_a_by_pixel;
+  for (const TrackedPoint& t : in_a.tracked) in_a_by_pixel[{t.keypoint.pt.x, t.keypoint.pt.y}] = &t;
+  std::vector<PointPair> pairs;
+  std::vector<std::pair<MapPointId, MapPointId>> ids;
+  const Eigen::Vector3d centre_b = in_b.T_w_c.translation();
+  for (const TrackedPoint& t : in_b.tracked) {
+    const auto it = in_a_by_pixel.find({t.keypoint.pt.x, t.keypoint.pt.y});
+    if (it == in_a_by_pixel.end()) continue;
+    pairs.push_back({it->second->p_w, t.p_w,
+                     config_.loops.tolerance_fraction * (t.p_w - centre_b).norm() + 0.01});
+    ids.emplace_back(it->second->id, t.id);
+  }
+  bool metric = false;
+  {
+    auto la = a.map().readLock();
+    auto lb = b.map().readLock();
+    metric = a.map().metric() && b.map().metric();
+  }
+  Sim3EstimateConfig sc;
+  sc.min_inliers = atlas_.relocalise_min_inliers;
+  sc.fix_scale = metric;
+  sc.seed = in_a.map_epoch;
+  const Sim3Estimate e = estimateSim3(pairs, sc);
+  if (!e.success) return std::nullopt;
+  MergeCandidate c;
+  c.a = a_id;
+  c.b = b_id;
+  c.S = e.S;
+  for (size_t i = 0; i < ids.size(); ++i) {
+    if (e.inliers[i]) c.duplicates.push_back(ids[i]);
+  }
+  if (!in_a.local_keyframes.empty()) c.query = in_a.local_keyframes.front();
+  if (!in_b.local_keyframes.empty()) c.match = in_b.local_keyframes.front();
+  c.device = device;
+  c.inliers = e.num_inliers;
+  return c;
+}
+
+void Atlas::tryMerge(MapId map_id, KeyFrameId keyframe, DeviceId device) {
+  const auto start = std::chrono::steady_clock::now();
+  std::unique_lock<std::shared_mutex> session(session_mutex_);  // no track() runs
+  std::shared_ptr<SlamSystem> a;
+  std::vector<std::pair<MapId, std::shared_ptr<SlamSystem>>> others;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    a = slamOf(map_id);
+    for (const Entry& e : maps_) {
+      if (e.id != map_id) others.emplace_back(e.id, e.slam);
+    }
+  }
+  if (!a || others.empty()) return;
+  cv::Mat descriptors;
+  bool metric_a = false;
+  {
+    auto lock = a->map().readLock();
+    const KeyFrame* k = a->map().keyframe(keyframe);
+    if (!k || k->features.descriptors.empty()) return;
+    descriptors = k->features.descriptors;
+    metric_a = a->map().metric();
+  }
+  for (const auto& [b_id, b] : others) {
+    if (!initialised(*b)) continue;
+    bool metric_b = false;
+    {
+      auto lock = b->map().readLock();
+      metric_b = b->map().metric();
+    }
+    for (const PlaceCandidate& c :
+         b->placeIndex().query(descriptors, atlas_.merge_candidates, 0.0)) {
+      const std::optional<PlaceMatch> m =
+          verifyPlace(a->map(), keyframe, b->map(), c.keyframe, {}, config_.loops,
+                      metric_a && metric_b, keyframe.value);
+      if (!m) continue;
+      MergeCandidate cand{map_id,   b_id,       m->S,   m->duplicates,
+                          keyframe, c.keyframe, device, m->inliers};
+      doMerge(cand, start);
+      return;
+    }
+  }
+}
+
+void Atlas::doMerge(const MergeCandidate& c, std::chrono::steady_clock::time_point start) {
+  // The smaller map goes into the larger.
+  size_t size_a = 0, size_b = 0;
+  std::shared_ptr<SlamSystem> a, b;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    a = slamOf(c.a);
+    b = slamOf(c.b);
+  }
+  if (!a || !b) return;
+  {
+    auto la = a->map().readLock();
+    size_a = a->map().numKeyFrames();
+  }
+  {
+    auto lb = b->map().readLock();
+    size_b = b->map().numKeyFrames();
+  }
+  const bool into_b = size_b >= size_a;
+  const std::shared_ptr<SlamSystem> into = into_b ? b : a, from = into_b ? a : b;
+  const MapId into_id = into_b ? c.b : c.a, from_id = into_b ? c.a : c.b;
+  const Sim3 S = into_b ? c.S : c.S.inverse();
+  std::vector<std::pair<MapPointId, MapPointId>> duplicates = c.duplicates;
+  if (!into_b) {
+    for (auto& d : duplicates) std::swap(d.first, d.second);
+  }
+  from->mapper().stopThread();
+  from->loopCloser().stopThread();
+  MergeResult r;
+  {
+    auto lock_into = into->map().writeLock();
+    auto lock_from = from->map().writeLock();
+    r = mergeMaps(&into->map(), &from->map(), S, duplicates);
+  }
+  into->reindex();
+  // The seam is mapped again: new points across it, fusion, local BA.
+  if (c.query.valid()) into->mapper().insert(c.query);
+  if (c.match.valid()) into->mapper().insert(c.match);
+  if (config_.synchronous_mapping) into->mapper().processPending();
+  // The whole merged map adjusted at once (as after a loop): the seam holds
+  // only the points seen from both sides so far.
+  if (config_.loops.global_ba) into->loopCloser().bundleAdjustAll();
+  MergeEvent event;
+  event.into = into_id;
+  event.from = from_id;
+  event.query = c.query;
+  event.match = c.match;
+  event.device = c.device;
+  event.inliers = c.inliers;
+  event.scale = c.S.scale;
+  event.keyframes_moved = r.keyframes_moved;
+  event.points_fused = r.points_fused;
+  event.S = S;
+  event.ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const LoopClosure& l : from->loopCloser().closures()) closed_loops_.push_back(l);
+  for (auto& [id, d] : devices_) {
+    if (d.current == from_id) d.current = into_id;
+    if (d.fresh == from_id) d.fresh = MapId();
+  }
+  merged_into_[from_id] = {into_id, S};
+  maps_.erase(
+      std::remove_if(maps_.begin(), maps_.end(), [&](const Entry& e) { return e.id == from_id; }),
+      maps_.end());
+  merges_.push_back(event);
+}
+
+std::vector<MapId> Atlas::mapIds() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<MapId> ids;
+  for (const Entry& e : maps_) ids.push_back(e.id);
+  return ids;
+}
+
+std::shared_ptr<SlamSystem> Atlas::map(MapId id) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return slamOf(id);
+}
+
+MapId Atlas::mapOf(DeviceId device) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = devices_.find(device);
+  return it == devices_.end() ? MapId() : it->second.current;
+}
+
+std::vector<MergeEvent> Atlas::merges() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return merges_;
+}
+
+std::pair<MapId, Sim3> Atlas::finalFrameOf(MapId id) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  Sim3 S;
+  for (auto it = merged_into_.find(id); it != merged_into_.end(); it = merged_into_.find(id)) {
+    S = it->second.second * S;
+    id = it->second.first;
+  }
+  return {id, S};
+}
+
+std::vector<LoopClosure> Atlas::loopClosures() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<LoopClosure> out = closed_loops_;
+  for (const Entry& e : maps_) {
+    for (const LoopClosure& l : e.slam->loopCloser().closures()) out.push_back(l);
+  }
+  return out;
+}
+
+}  // namespace ecar

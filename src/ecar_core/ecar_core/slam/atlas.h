@@ -1,0 +1,152 @@
+// An atlas of maps (issue 12): each map is a whole SlamSystem (map, indexes,
+// local mapper, loop closer, a tracker per device) with its own id range, so
+// that maps can be merged without renumbering.
+//
+// - A device whose uploads match no map starts its own map at once, while it
+//   tries to relocalise into the others with every upload; the first to
+//   succeed is its map (an unused fresh map is dropped).
+// - A device lost for `new_map_after_lost` uploads starts a new map the same
+//   way (a place it has never mapped).
+// - Each new keyframe is looked up in the other maps' place indexes; a match
+//   verified by a similarity (verifyPlace; SE(3) when both maps are metric)
+//   merges the smaller map into the larger (mergeMaps): its keyframes and
+//   points move through the similarity, duplicates fuse, the seam's keyframes
+//   are mapped again (triangulation, fusion and local BA across the seam), and
+//   its devices go on in the merged map (relocalising there with their next
+//   upload).
+//
+//   Atlas atlas(default_camera, slam_config, atlas_config);
+//   MapId map;
+//   TrackResult r = atlas.track(device, image, stamp, frame, gravity, odometry, &map);
+//
+// Thread-safety: track() of different devices may run concurrently; a merge
+// waits for every running track() and blocks new ones while it moves the map.
+// The offline runner uses it; the server still keeps one map (next step).
+#pragma once
+
+#include <chrono>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <shared_mutex>
+#include <unordered_map>
+#include <vector>
+
+#include "ecar_core/common/camera.h"
+#include "ecar_core/common/geometry.h"
+#include "ecar_core/common/types.h"
+#include "ecar_core/slam/map_correction.h"
+#include "ecar_core/slam/slam_system.h"
+
+namespace ecar {
+
+struct AtlasConfig {
+  /// false: one map, as a single SlamSystem (every device joins the first map).
+  bool several_maps = true;
+  /// A device lost for this many uploads starts a new map (0: never).
+  int new_map_after_lost = 8;
+  bool merge = true;
+  size_t merge_candidates = 3;  ///< place-recognition candidates per other map
+  /// A device tracked in its map tries to relocalise into each other map
+  /// every this many uploads (0: never): a view from the opposite direction
+  /// shares too few words for place recognition, but relocalisation (keypoint
+  /// matches, gravity RANSAC) finds it. The points matched in both maps give
+  /// the similarity (at least relocalise_min_inliers inliers).
+  int relocalise_every = 2;
+  int relocalise_min_inliers = 20;
+  /// Ids of map k start at k * id_range + 1.
+  uint32_t id_range = 10000000;
+};
+
+/// One merge: which maps, found by which keyframe, at what cost.
+struct MergeEvent {
+  MapId into, from;
+  KeyFrameId query, match;  ///< the keyframe that found it, and its match
+  DeviceId device;          ///< whose keyframe it was
+  int inliers = 0;
+  double scale = 1.0;  ///< of the similarity
+  double ms = 0.0;     ///< verification and merge
+  size_t keyframes_moved = 0, points_fused = 0;
+  /// The similarity from the merged map's world to the kept map's.
+  Sim3 S;
+};
+
+class Atlas {
+ public:
+  Atlas(const PinholeCamera& camera, const SlamConfig& config,
+        const AtlasConfig& atlas = AtlasConfig());
+  ~Atlas();
+
+  void setCamera(DeviceId device, const PinholeCamera& camera);
+  /// Tracks one upload of a device in its map (see the file comment); `map`
+  /// receives the map the result is in (invalid when none).
+  TrackResult track(DeviceId device, const cv::Mat& image, double timestamp, uint32_t frame_index,
+                    const std::optional<Eigen::Vector3d>& gravity_c,
+                    const std::optional<SE3>& T_o_c, MapId* map);
+
+  std::vector<MapId> mapIds() const;
+  /// Null when `id` is not (or no longer) a map.
+  std::shared_ptr<SlamSystem> map(MapId id) const;
+  /// The map a device tracks in (invalid when none yet).
+  MapId mapOf(DeviceId device) const;
+  std::vector<MergeEvent> merges() const;
+  /// Where a map's coordinates went: the similarity from `id`'s world to the
+  /// world of the map it was merged into (through every later merge), and
+  /// that map. Identity and `id` itself for a live map.
+  std::pair<MapId, Sim3> finalFrameOf(MapId id) const;
+  /// Every loop closed in any map.
+  std::vector<LoopClosure> loopClosures() const;
+  /// Stops every map's threads after finishing their queues.
+  void finish();
+
+ private:
+  struct Device {
+    MapId current;   ///< the map it tracks in
+    MapId fresh;     ///< a map of its own being initialised
+    int lost = 0;    ///< uploads not tracked in `current` in a row
+    int probes = 0;  ///< tracked uploads (relocalisation into other maps every relocalise_every)
+  };
+  struct Entry {
+    MapId id;
+    std::shared_ptr<SlamSystem> slam;
+  };
+  std::shared_ptr<SlamSystem> slamOf(MapId id) const;  // mutex_ held
+  MapId newMap();                                      // mutex_ held
+  /// Two maps found to overlap: a's world -> b's world, and the pairs of
+  /// their points that are one physical point (a's, b's).
+  struct MergeCandidate {
+    MapId a, b;
+    Sim3 S;
+    std::vector<std::pair<MapPointId, MapPointId>> duplicates;
+    KeyFrameId query, match;  ///< seam keyframes mapped again after the merge (may be invalid)
+    DeviceId device;
+    int inliers = 0;
+  };
+  /// The overlap a device's upload shows when it was tracked in map a and
+  /// relocalised in map b: the points matched to the same keypoints in both.
+  std::optional<MergeCandidate> relocalisedOverlap(MapId a_id, const SlamSystem& a,
+                                                   const TrackResult& in_a, MapId b_id,
+                                                   const SlamSystem& b, const TrackResult& in_b,
+                                                   DeviceId device) const;
+  /// Looks for the keyframe's place in the other maps; merges on a match.
+  void tryMerge(MapId map, KeyFrameId keyframe, DeviceId device);
+  /// Merges the smaller of the candidate's maps into the larger. The session
+  /// lock held exclusively.
+  void doMerge(const MergeCandidate& c, std::chrono::steady_clock::time_point start);
+
+  PinholeCamera camera_;
+  SlamConfig config_;
+  AtlasConfig atlas_;
+  /// Shared by track(), exclusive while a merge moves a map.
+  mutable std::shared_mutex session_mutex_;
+  mutable std::mutex mutex_;  // guards everything below
+  std::vector<Entry> maps_;
+  std::unordered_map<DeviceId, Device> devices_;
+  std::unordered_map<DeviceId, PinholeCamera> cameras_;
+  std::vector<MergeEvent> merges_;
+  std::vector<LoopClosure> closed_loops_;  ///< of maps merged away
+  std::unordered_map<MapId, std::pair<MapId, Sim3>> merged_into_;
+  uint32_t next_map_ = 1;
+};
+
+}  // namespace ecar
