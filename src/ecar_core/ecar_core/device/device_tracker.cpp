@@ -6,16 +6,13 @@
 #include <string>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 
 namespace ecar {
 namespace {
 
 /// Size of a received keypoint (ORB's patch diameter; the wire does not carry it).
 constexpr float kKeypointSize = 31.0f;
-
-double msSince(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
 
 bool finitePositive(double x) { return std::isfinite(x) && x > 0.0; }
 

@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/io/map_file.h"
 #include "ecar_core/io/slam_map_codec.h"
 #include "ecar_core/io/structure_codec.h"
@@ -14,11 +15,6 @@
 
 namespace ecar {
 namespace {
-
-double msSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
-      .count();
-}
 
 VoStoreConfig voConfigOf(const GlobalGraphConfig& config) {
   VoStoreConfig c = config.vo;

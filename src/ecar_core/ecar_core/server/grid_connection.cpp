@@ -5,19 +5,11 @@
 #include <set>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/slam/map_queries.h"
 #include "ecar_core/structure/grid_cells.h"
 
 namespace ecar {
-namespace {
-
-double msSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
-      .count();
-}
-
-}  // namespace
-
 GridConnection::GridConnection(GlobalGraph* graph, const GridConnectionConfig& config)
     : graph_(graph), config_(config) {
   if (!graph_) throw Error("GridConnection: no global graph");

@@ -3,18 +3,10 @@
 #include <chrono>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/slam/map_queries.h"
 
 namespace ecar {
-namespace {
-
-double msSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
-      .count();
-}
-
-}  // namespace
-
 PlaneSegmentation::PlaneSegmentation(GlobalGraph* graph, const PlaneConfig& config,
                                      size_t neighbours)
     : graph_(graph), segmenter_(config), neighbours_(neighbours) {

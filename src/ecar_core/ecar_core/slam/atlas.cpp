@@ -4,6 +4,7 @@
 #include <chrono>
 #include <map>
 
+#include "ecar_core/common/timing.h"
 #include "ecar_core/slam/map_merge.h"
 #include "ecar_core/slam/place_verification.h"
 #include "ecar_core/slam/sim3_solver.h"
@@ -317,8 +318,7 @@ void Atlas::doMerge(const MergeCandidate& c, std::chrono::steady_clock::time_poi
   event.keyframes_moved = r.keyframes_moved;
   event.points_fused = r.points_fused;
   event.S = S;
-  event.ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  event.ms = msSince(start);
   std::lock_guard<std::mutex> lock(mutex_);
   for (const LoopClosure& l : from->loopCloser().closures()) closed_loops_.push_back(l);
   for (auto& [id, d] : devices_) {

@@ -2,26 +2,15 @@
 
 #include <algorithm>
 #include <chrono>
-#include <cstring>
 #include <unordered_set>
 
-#include "ecar_core/slam/features.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/slam/local_mapper.h"
-#include "ecar_core/slam/matcher.h"
 #include "ecar_core/slam/optimizer.h"
 #include "ecar_core/slam/place_verification.h"
 #include "ecar_core/slam/pose_graph.h"
-#include "ecar_core/slam/sim3_solver.h"
 
 namespace ecar {
-namespace {
-
-double msSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
-      .count();
-}
-
-}  // namespace
 
 struct LoopCloser::Candidate {
   KeyFrameId query, match;

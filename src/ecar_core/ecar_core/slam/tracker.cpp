@@ -13,18 +13,12 @@
 #include <opencv2/imgproc.hpp>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/slam/local_mapper.h"
 #include "ecar_core/slam/matcher.h"
 #include "ecar_core/slam/tracker.h"
 
 namespace ecar {
-namespace {
-
-double msSince(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
-}  // namespace
-
 const char* toString(TrackingState state) {
   switch (state) {
     case TrackingState::kOk:
