@@ -68,7 +68,12 @@ void LocalMapper::startThread() {
 
 void LocalMapper::stopThread() {
   if (!thread_.joinable()) return;
-  stop_ = true;
+  {
+    // Under the queue's mutex: set between the thread's check of its wait
+    // condition and its sleep, the wake-up would be lost and join() hang.
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    stop_ = true;
+  }
   queue_cv_.notify_all();
   thread_.join();
 }

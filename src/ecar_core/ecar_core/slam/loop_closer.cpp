@@ -60,7 +60,12 @@ void LoopCloser::startThread() {
 
 void LoopCloser::stopThread() {
   if (!thread_.joinable()) return;
-  stop_ = true;
+  {
+    // Under the mutex: set between the thread's check of its wait condition
+    // and its sleep, the wake-up would be lost and join() hang.
+    std::lock_guard<std::mutex> lock(mutex_);
+    stop_ = true;
+  }
   cv_.notify_all();
   thread_.join();
 }
