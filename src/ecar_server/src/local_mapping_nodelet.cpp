@@ -61,10 +61,11 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
           l.query.value, graph_->devices().name(l.device).c_str(), l.match.value, l.inliers,
           l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.points_fused);
     }
-    NODELET_INFO("map corrected: %zu keyframes, %zu points, %zu planes, %zu objects moved "
-                 "(grid links of %zu keyframes re-cast, %zu cells) in %.1f ms",
-                 report.keyframes, report.points, report.planes, report.objects,
-                 report.keyframes_recast, report.keyframe_cells, report.milliseconds);
+    NODELET_INFO(
+        "map corrected: %zu keyframes, %zu points, %zu planes, %zu objects moved "
+        "(grid links of %zu keyframes re-cast, %zu cells) in %.1f ms",
+        report.keyframes, report.points, report.planes, report.objects, report.keyframes_recast,
+        report.keyframe_cells, report.milliseconds);
   }
 
  private:

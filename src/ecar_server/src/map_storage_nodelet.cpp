@@ -56,10 +56,9 @@ class MapStorageNodelet : public nodelet::Nodelet {
     NODELET_INFO("map storage: %s, %s", ecar_bridge::kSaveMapService, ecar_bridge::kLoadMapService);
     autosave_path_ = config.autosavePath();
     if (!autosave_path_.empty()) {
-      autosave_timer_ = nh.createWallTimer(ros::WallDuration(config.autosave_period),
-                                           [this](const ros::WallTimerEvent&) {
-                                             autosave("periodic");
-                                           });
+      autosave_timer_ =
+          nh.createWallTimer(ros::WallDuration(config.autosave_period),
+                             [this](const ros::WallTimerEvent&) { autosave("periodic"); });
       NODELET_INFO("autosave: every %.0f s and on shutdown to '%s'", config.autosave_period,
                    autosave_path_.c_str());
     }
@@ -71,8 +70,9 @@ class MapStorageNodelet : public nodelet::Nodelet {
     try {
       const ecar::MapCounts c = graph_->save(autosave_path_);
       NODELET_DEBUG("autosave (%s): %s", when, describe(c).c_str());
-      if (!autosaved_) NODELET_INFO("autosave (%s): %s to '%s'", when, describe(c).c_str(),
-                                    autosave_path_.c_str());
+      if (!autosaved_)
+        NODELET_INFO("autosave (%s): %s to '%s'", when, describe(c).c_str(),
+                     autosave_path_.c_str());
       autosaved_ = true;
     } catch (const std::exception& e) {
       NODELET_ERROR("autosave (%s) failed: %s", when, e.what());

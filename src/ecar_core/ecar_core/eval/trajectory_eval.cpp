@@ -5,6 +5,7 @@
 #include <limits>
 #include <sstream>
 
+#include <Eigen/Geometry>
 #include <Eigen/SVD>
 
 #include "ecar_core/common/error.h"
@@ -76,6 +77,21 @@ Sim3 fitAlignment(const Trajectory& gt, const Trajectory& est,
 }
 
 }  // namespace
+
+std::vector<double> rotationSpreadDeg(const std::vector<Eigen::Matrix3d>& rotations) {
+  std::vector<double> out;
+  if (rotations.empty()) return out;
+  Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+  for (const auto& R : rotations) sum += R;
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(sum, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1.0 : 1.0;
+  const Eigen::Matrix3d mean = svd.matrixU() * D * svd.matrixV().transpose();
+  for (const auto& R : rotations) {
+    out.push_back(Eigen::AngleAxisd(R * mean.transpose()).angle() * 180.0 / M_PI);
+  }
+  return out;
+}
 
 Sim3 umeyama(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst,
              bool with_scale) {

@@ -22,6 +22,11 @@ namespace ecar {
 /// Throws ecar::Error when the sizes differ, there are fewer than 3 points, a
 /// point is not finite, or the points are degenerate (all coincident or all
 /// collinear, so the rotation is not unique).
+/// Angles (degrees) of each rotation from their chordal mean (the SVD
+/// projection of their sum onto SO(3)): how far a set of map-to-world
+/// rotations spreads, i.e. how much a map bends. Empty for no rotations.
+std::vector<double> rotationSpreadDeg(const std::vector<Eigen::Matrix3d>& rotations);
+
 Sim3 umeyama(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst,
              bool with_scale);
 
