@@ -17,92 +17,37 @@ LocalMapper::LocalMapper(Map* map, PlaceIndex* index, const SlamConfig& config,
 
 LocalMapper::~LocalMapper() { stopThread(); }
 
-void LocalMapper::insert(KeyFrameId kf) {
-  {
-    std::lock_guard<std::mutex> lock(queue_mutex_);
-    queue_.push_back(kf);
-  }
-  queue_cv_.notify_one();
-}
+void LocalMapper::insert(KeyFrameId kf) { worker_.push(kf); }
 
-bool LocalMapper::idle() const {
-  std::lock_guard<std::mutex> lock(queue_mutex_);
-  return queue_.empty() && !busy_;
-}
+bool LocalMapper::idle() const { return worker_.idle(); }
 
 std::vector<double> LocalMapper::baTimes() const {
-  std::lock_guard<std::mutex> lock(queue_mutex_);
+  std::lock_guard<std::mutex> lock(mutex_);
   return ba_ms_;
 }
 
 void LocalMapper::setMappedCallback(std::function<void(KeyFrameId)> callback) {
-  std::lock_guard<std::mutex> lock(queue_mutex_);
+  std::lock_guard<std::mutex> lock(mutex_);
   mapped_callback_ = std::move(callback);
 }
 
 void LocalMapper::setCulledCallback(std::function<void(KeyFrameId, KeyFrameId)> callback) {
-  std::lock_guard<std::mutex> lock(queue_mutex_);
+  std::lock_guard<std::mutex> lock(mutex_);
   culled_callback_ = std::move(callback);
 }
 
-void LocalMapper::processPending() {
-  for (;;) {
-    KeyFrameId kf;
-    {
-      std::lock_guard<std::mutex> lock(queue_mutex_);
-      if (queue_.empty()) return;
-      kf = queue_.front();
-      queue_.pop_front();
-      busy_ = true;
-    }
-    process(kf);
-    busy_ = false;
-  }
-}
+void LocalMapper::processPending() { worker_.processPending(); }
 
-void LocalMapper::startThread() {
-  if (thread_.joinable()) return;
-  stop_ = false;
-  thread_ = std::thread([this] { run(); });
-}
+void LocalMapper::startThread() { worker_.startThread(); }
 
-void LocalMapper::stopThread() {
-  if (!thread_.joinable()) return;
-  {
-    // Under the queue's mutex: set between the thread's check of its wait
-    // condition and its sleep, the wake-up would be lost and join() hang.
-    std::lock_guard<std::mutex> lock(queue_mutex_);
-    stop_ = true;
-  }
-  queue_cv_.notify_all();
-  thread_.join();
-}
+void LocalMapper::stopThread() { worker_.stopThread(); }
 
 void LocalMapper::reset() {
-  const bool threaded = thread_.joinable();
-  {
-    std::lock_guard<std::mutex> lock(queue_mutex_);
-    queue_.clear();
-  }
-  stopThread();  // finishes the keyframe being mapped, if any
+  const bool threaded = worker_.threaded();
+  worker_.clear();
+  worker_.stopThread();  // finishes the keyframe being mapped, if any
   recent_points_.clear();
-  if (threaded) startThread();
-}
-
-void LocalMapper::run() {
-  for (;;) {
-    KeyFrameId kf;
-    {
-      std::unique_lock<std::mutex> lock(queue_mutex_);
-      queue_cv_.wait(lock, [this] { return stop_ || !queue_.empty(); });
-      if (queue_.empty()) return;  // stopping with nothing left
-      kf = queue_.front();
-      queue_.pop_front();
-      busy_ = true;
-    }
-    process(kf);
-    busy_ = false;
-  }
+  if (threaded) worker_.startThread();
 }
 
 void LocalMapper::process(KeyFrameId kf) {
@@ -136,7 +81,7 @@ void LocalMapper::process(KeyFrameId kf) {
   if (!descriptors.empty() && keypoints_) keypoints_->add(kf, descriptors, point_rows);
   std::function<void(KeyFrameId)> callback;
   {
-    std::lock_guard<std::mutex> lock(queue_mutex_);
+    std::lock_guard<std::mutex> lock(mutex_);
     callback = mapped_callback_;
   }
   if (callback) callback(kf);
@@ -472,7 +417,7 @@ void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
     if (map_->point(pid)) map_->updatePointStatistics(pid);
   }
   lock.unlock();
-  std::lock_guard<std::mutex> ql(queue_mutex_);
+  std::lock_guard<std::mutex> ql(mutex_);
   ba_ms_.push_back(
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
 }
@@ -508,7 +453,7 @@ void LocalMapper::cullKeyFrames(KeyFrameId kf) {
       if (keypoints_) keypoints_->remove(nid);
       std::function<void(KeyFrameId, KeyFrameId)> callback;
       {
-        std::lock_guard<std::mutex> ql(queue_mutex_);
+        std::lock_guard<std::mutex> ql(mutex_);
         callback = culled_callback_;
       }
       if (callback) callback(nid, heir);

@@ -11,16 +11,13 @@
 // takes the map's write lock only for short updates (map.h).
 #pragma once
 
-#include <atomic>
-#include <condition_variable>
-#include <deque>
 #include <functional>
 #include <mutex>
-#include <thread>
 #include <vector>
 
 #include "ecar_core/common/camera.h"
 #include "ecar_core/common/types.h"
+#include "ecar_core/slam/keyframe_worker.h"
 #include "ecar_core/slam/map.h"
 #include "ecar_core/slam/optimizer.h"
 #include "ecar_core/slam/place_recognition.h"
@@ -79,22 +76,19 @@ class LocalMapper {
   void localBundleAdjustment(KeyFrameId kf);
 
   void cullKeyFrames(KeyFrameId kf);
-  void run();
 
   Map* map_;
   PlaceIndex* index_;
   KeypointIndex* keypoints_;
   LoopCloser* loop_closer_ = nullptr;
   SlamConfig config_;
-  mutable std::mutex queue_mutex_;
-  std::condition_variable queue_cv_;
-  std::deque<KeyFrameId> queue_;
+  mutable std::mutex mutex_;  // guards ba_ms_ and the callbacks
   std::vector<MapPointId> recent_points_;
   std::vector<double> ba_ms_;
-  std::function<void(KeyFrameId)> mapped_callback_;              // guarded by queue_mutex_
-  std::function<void(KeyFrameId, KeyFrameId)> culled_callback_;  // guarded by queue_mutex_
-  std::atomic<bool> busy_{false}, stop_{false};
-  std::thread thread_;
+  std::function<void(KeyFrameId)> mapped_callback_;              // guarded by mutex_
+  std::function<void(KeyFrameId, KeyFrameId)> culled_callback_;  // guarded by mutex_
+  /// Last: stopped (destroyed) before the members process() uses.
+  KeyFrameWorker worker_{[this](KeyFrameId kf) { process(kf); }};
 };
 
 }  // namespace ecar

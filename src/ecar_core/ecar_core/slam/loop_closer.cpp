@@ -26,64 +26,28 @@ LoopCloser::~LoopCloser() { stopThread(); }
 
 void LoopCloser::insert(KeyFrameId kf) {
   if (!config_.loops.enabled) return;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    queue_.push_back(kf);
-  }
-  if (thread_.joinable()) {
-    cv_.notify_one();
-  } else {
-    processPending();  // synchronous mode: deterministic, inside the mapper's call
-  }
+  worker_.push(kf);
+  // Synchronous mode: deterministic, inside the mapper's call.
+  if (!worker_.threaded()) worker_.processPending();
 }
 
-void LoopCloser::processPending() {
-  for (;;) {
-    KeyFrameId kf;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      if (queue_.empty()) return;
-      kf = queue_.front();
-      queue_.pop_front();
-      busy_ = true;
-    }
-    process(kf);
-    busy_ = false;
-  }
-}
+void LoopCloser::processPending() { worker_.processPending(); }
 
-void LoopCloser::startThread() {
-  if (thread_.joinable()) return;
-  stop_ = false;
-  thread_ = std::thread([this] { run(); });
-}
+void LoopCloser::startThread() { worker_.startThread(); }
 
-void LoopCloser::stopThread() {
-  if (!thread_.joinable()) return;
-  {
-    // Under the mutex: set between the thread's check of its wait condition
-    // and its sleep, the wake-up would be lost and join() hang.
-    std::lock_guard<std::mutex> lock(mutex_);
-    stop_ = true;
-  }
-  cv_.notify_all();
-  thread_.join();
-}
+void LoopCloser::stopThread() { worker_.stopThread(); }
 
 void LoopCloser::reset() {
   // Not waiting for a loop being closed: it was computed on the old map, whose
   // epoch differs now, and is dropped before it changes anything (and a
   // corrected callback may be waiting for the caller's own locks).
+  worker_.clear();
   std::lock_guard<std::mutex> lock(mutex_);
-  queue_.clear();
   loop_edges_.clear();
   last_loop_keyframe_ = KeyFrameId();
 }
 
-bool LoopCloser::idle() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return queue_.empty() && !busy_;
-}
+bool LoopCloser::idle() const { return worker_.idle(); }
 
 std::vector<LoopClosure> LoopCloser::closures() const {
   std::lock_guard<std::mutex> lock(mutex_);
@@ -93,22 +57,6 @@ std::vector<LoopClosure> LoopCloser::closures() const {
 void LoopCloser::setCorrectedCallback(std::function<void(const MapCorrection&)> callback) {
   std::lock_guard<std::mutex> lock(mutex_);
   callback_ = std::move(callback);
-}
-
-void LoopCloser::run() {
-  for (;;) {
-    KeyFrameId kf;
-    {
-      std::unique_lock<std::mutex> lock(mutex_);
-      cv_.wait(lock, [this] { return stop_ || !queue_.empty(); });
-      if (queue_.empty()) return;
-      kf = queue_.front();
-      queue_.pop_front();
-      busy_ = true;
-    }
-    process(kf);
-    busy_ = false;
-  }
 }
 
 void LoopCloser::notify(const MapCorrection& correction) {

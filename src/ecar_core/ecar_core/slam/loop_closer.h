@@ -18,16 +18,13 @@
 // not written back).
 #pragma once
 
-#include <atomic>
-#include <condition_variable>
-#include <deque>
 #include <functional>
 #include <mutex>
-#include <thread>
 #include <vector>
 
 #include "ecar_core/common/geometry.h"
 #include "ecar_core/common/types.h"
+#include "ecar_core/slam/keyframe_worker.h"
 #include "ecar_core/slam/map.h"
 #include "ecar_core/slam/map_correction.h"
 #include "ecar_core/slam/place_recognition.h"
@@ -81,14 +78,11 @@ class LoopCloser {
   MapCorrection correct(const Candidate& c, LoopClosure* report);
   void globalBundleAdjustment(LoopClosure* report);
   void notify(const MapCorrection& correction);
-  void run();
 
   Map* map_;
   PlaceIndex* index_;
   SlamConfig config_;
-  mutable std::mutex mutex_;  // guards the queue, closures_, loop_edges_, callback_
-  std::condition_variable cv_;
-  std::deque<KeyFrameId> queue_;
+  mutable std::mutex mutex_;  // guards closures_, loop_edges_, callback_, last_loop_keyframe_
   std::vector<LoopClosure> closures_;
   /// Loop edges kept for later pose graphs: (a, b, S_a_w S_b_w^-1 when closed).
   struct LoopEdge {
@@ -98,8 +92,8 @@ class LoopCloser {
   std::vector<LoopEdge> loop_edges_;
   std::function<void(const MapCorrection&)> callback_;
   KeyFrameId last_loop_keyframe_;
-  std::atomic<bool> busy_{false}, stop_{false};
-  std::thread thread_;
+  /// Last: stopped (destroyed) before the members process() uses.
+  KeyFrameWorker worker_{[this](KeyFrameId kf) { process(kf); }};
 };
 
 }  // namespace ecar
