@@ -111,6 +111,7 @@ void toMsg(const ecar::LocalGraph& g, ecar_msgs::LocalGraph* msg) {
   msg->status = static_cast<uint8_t>(g.status);
   msg->pose = toMsg(g.T_w_c);
   msg->map_epoch = g.map_epoch;
+  msg->map_id = g.map.value;
   msg->sync_mode = g.mode == ecar::SyncMode::kEdgeSlam ? ecar_msgs::LocalGraph::SYNC_EDGESLAM
                                                        : ecar_msgs::LocalGraph::SYNC_ECAR;
   if (g.points.size() > 0xFFFF) throw ecar::Error("local graph: more than 65535 points");
@@ -158,6 +159,7 @@ ecar::LocalGraph fromMsg(const ecar_msgs::LocalGraph& msg, std::vector<std::stri
   g.status = static_cast<ecar::GraphStatus>(msg.status);
   if (ecar::tracked(g.status)) g.T_w_c = fromMsg(msg.pose, "pose");
   g.map_epoch = msg.map_epoch;
+  g.map = ecar::MapId(msg.map_id);
   if (msg.sync_mode > ecar_msgs::LocalGraph::SYNC_EDGESLAM) {
     throw ecar::Error("sync_mode: " + std::to_string(msg.sync_mode) + " is not a sync mode");
   }

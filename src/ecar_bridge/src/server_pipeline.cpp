@@ -38,6 +38,7 @@ ecar_msgs::TrackedFrame toMsg(const ecar::TrackResult& result, const FrameMeta& 
   m.server_received = meta.server_received;
   m.tracking_time = meta.tracking_time;
   m.map_epoch = result.map_epoch;
+  m.map_id = result.map.value;
   m.reset = meta.reset;
   return m;
 }
@@ -69,6 +70,7 @@ ecar::TrackResult fromMsg(const ecar_msgs::TrackedFrame& msg, FrameMeta* meta) {
   for (uint32_t k : msg.local_keyframes) r.local_keyframes.push_back(ecar::KeyFrameId(k));
   if (msg.new_keyframe) r.new_keyframe = ecar::KeyFrameId(msg.keyframe_id);
   r.map_epoch = msg.map_epoch;
+  r.map = ecar::MapId(msg.map_id);
   if (meta) {
     meta->device = msg.device_id;
     meta->frame_index = msg.frame_index;

@@ -385,7 +385,14 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
   }
   if (!has_epoch_ || msg->map_epoch != epoch_) {
     changeEpoch(msg->map_epoch, "a local graph");
+  } else if (msg->map_id != 0 && map_id_ != 0 && msg->map_id != map_id_) {
+    // Our map was merged into another: everything comes again in its
+    // coordinates (this graph brings the pose, points, planes and objects).
+    ROS_INFO("%s: server map %u -> %u (merged): local map dropped", id, map_id_, msg->map_id);
+    dropLocalMap();
+    reset_next_ = false;  // the server forgot what we held too: this graph has it all
   }
+  if (msg->map_id != 0) map_id_ = msg->map_id;
   if (!graph.planes.empty() || !graph.objects.empty()) {
     objects_.applyGraph(graph.planes, graph.objects);
   }
@@ -428,13 +435,18 @@ void Device::changeEpoch(uint32_t epoch, const char* why) {
   if (has_epoch_) {
     ROS_INFO("%s: map epoch %u -> %u (from %s): local map dropped", config_.device_id.c_str(),
              epoch_, epoch, why);
-    if (tracker_) tracker_->clear();
-    objects_.clear();
-    T_w_c_.reset();
-    reset_next_ = true;
+    dropLocalMap();
   }
   has_epoch_ = true;
   epoch_ = epoch;
+  map_id_ = 0;
+}
+
+void Device::dropLocalMap() {
+  if (tracker_) tracker_->clear();
+  objects_.clear();
+  T_w_c_.reset();
+  reset_next_ = true;
 }
 
 void Device::prunePending(const ros::Time& now) {

@@ -62,6 +62,12 @@ void ServerConfig::validate() const {
   if (!(camera_tolerance >= 0.0 && camera_tolerance < 1.0)) {
     fail("camera_tolerance", "must be in [0, 1)");
   }
+  if (new_map_after_lost < 0 || new_map_after_lost > 100000) {
+    fail("new_map_after_lost", "must be in [0, 100000] uploads");
+  }
+  if (merge_probe_every < 0 || merge_probe_every > 100000) {
+    fail("merge_probe_every", "must be in [0, 100000] uploads");
+  }
   if (graph_plane_refresh < 1) fail("planes/graph_plane_refresh", "must be >= 1");
   try {
     composerConfig().validate();
@@ -119,6 +125,10 @@ ecar::GlobalGraphConfig ServerConfig::graphConfig(uint32_t first_epoch) const {
   c.vo.cell_size = grid.cell_size;
   c.vo_map_margin = vo_map_margin;
   c.camera_tolerance = camera_tolerance;
+  c.atlas.several_maps = several_maps;
+  c.atlas.new_map_after_lost = new_map_after_lost;
+  c.atlas.merge = merge_maps;
+  c.atlas.relocalise_every = merge_probe_every;
   c.devices.default_mode = syncMode();
   c.devices.default_keyframe_queue = static_cast<size_t>(keyframe_queue);
   c.devices.device_timeout = device_timeout;

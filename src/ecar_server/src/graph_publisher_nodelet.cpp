@@ -133,8 +133,11 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
       return;
     }
     const std::optional<ecar::DeviceInfo> info = graph_->devices().device(device);
-    const std::shared_ptr<ecar::SlamSystem> slam = graph_->slam();
-    if (!info || !slam) return;  // disconnected meanwhile
+    // Not tracked: any map answers the epoch check (the graph has no points).
+    const std::shared_ptr<ecar::SlamSystem> slam =
+        graph_->map(frame.map.valid() ? frame.map : graph_->largestMap());
+    if (!info) return;  // disconnected meanwhile
+    if (!slam) return;  // its map merged away meanwhile (the device's next upload answers)
     const std::shared_ptr<const ecar::LocalGraphComposer> composer = this->composer();
     ecar::ComposerInput in;
     in.device = device;

@@ -1,10 +1,11 @@
-// LocalMapping (core: ecar::LocalMapper, started with the SLAM system, which
-// maps every device's keyframes into the one map, and ecar::LoopCloser):
-// reports each keyframe it finished on /ecar/keyframe_mapped, and logs every
-// loop closed and what its correction moved. When the mapper culls a redundant
+// LocalMapping (core: ecar::LocalMapper and ecar::LoopCloser, one of each per
+// map of the atlas, started with the map): reports each keyframe a mapper
+// finished on /ecar/keyframe_mapped, and logs every loop closed, every merge
+// of two maps and what they moved. When the mapper culls a redundant
 // keyframe, the global graph drops its plane and cell links and moves the
 // objects hanging on it (vo_attach keyframe) to its heir, the neighbour that
 // shared the most points with it.
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -28,30 +29,48 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
   ~LocalMappingNodelet() override {
     if (graph_) graph_->removeListener(this);
     std::lock_guard<std::mutex> lock(mutex_);
-    if (slam_) {
-      slam_->mapper().setMappedCallback({});
-      slam_->mapper().setCulledCallback({});
+    for (const auto& kv : maps_) {
+      kv.second->mapper().setMappedCallback({});
+      kv.second->mapper().setCulledCallback({});
     }
   }
 
-  void onSlamCreated(const std::shared_ptr<ecar::SlamSystem>& slam) override {
+  void onMapCreated(ecar::MapId id, const std::shared_ptr<ecar::SlamSystem>& slam) override {
     std::lock_guard<std::mutex> lock(mutex_);
-    slam_ = slam;
+    maps_[id] = slam;
     ecar::SlamSystem* s = slam.get();
     slam->mapper().setMappedCallback([this, s](ecar::KeyFrameId id) { onMapped(*s, id); });
     slam->mapper().setCulledCallback(
         [this](ecar::KeyFrameId culled, ecar::KeyFrameId heir) { onCulled(culled, heir); });
   }
 
+  void onMapRemoved(ecar::MapId id) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = maps_.find(id);
+    if (it == maps_.end()) return;
+    it->second->mapper().setMappedCallback({});
+    it->second->mapper().setCulledCallback({});
+    maps_.erase(it);
+  }
+
+  // On the merging device's tracking worker, once planes, objects and grid
+  // links moved.
+  void onMapsMerged(const ecar::MapMergeReport& r) override {
+    const ecar::MergeEvent& m = r.merge;
+    NODELET_INFO(
+        "maps merged: map %u into map %u, found by %s (keyframe %u with keyframe %u, %d inliers, "
+        "scale %.4f): %zu keyframes moved, %zu points fused in %.1f ms; %zu planes and %zu "
+        "objects moved in %.1f ms, grid links of %zu keyframes re-cast in %.1f ms",
+        m.from.value, m.into.value, graph_->devices().name(m.device).c_str(), m.query.value,
+        m.match.value, m.inliers, m.scale, m.keyframes_moved, m.points_fused, m.ms, r.planes,
+        r.objects, r.structure_ms, r.keyframes_recast, r.recast_ms);
+  }
+
   // On the loop closer's thread, once planes and objects moved too.
   void onMapCorrected(const ecar::MapCorrectionReport& report) override {
-    std::shared_ptr<ecar::SlamSystem> slam;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      slam = slam_;
-    }
+    const std::shared_ptr<ecar::Atlas> atlas = graph_->atlas();
     const std::vector<ecar::LoopClosure> loops =
-        slam ? slam->loopCloser().closures() : std::vector<ecar::LoopClosure>();
+        atlas ? atlas->loopClosures() : std::vector<ecar::LoopClosure>();
     if (!loops.empty() && loops.size() != reported_loops_) {
       reported_loops_ = loops.size();
       const ecar::LoopClosure& l = loops.back();
@@ -62,10 +81,10 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
           l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.points_fused);
     }
     NODELET_INFO(
-        "map corrected: %zu keyframes, %zu points, %zu planes, %zu objects moved "
+        "map %u corrected: %zu keyframes, %zu points, %zu planes, %zu objects moved "
         "(grid links of %zu keyframes re-cast, %zu cells) in %.1f ms",
-        report.keyframes, report.points, report.planes, report.objects, report.keyframes_recast,
-        report.keyframe_cells, report.milliseconds);
+        report.map.value, report.keyframes, report.points, report.planes, report.objects,
+        report.keyframes_recast, report.keyframe_cells, report.milliseconds);
   }
 
  private:
@@ -108,9 +127,9 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
 
   std::shared_ptr<ecar::GlobalGraph> graph_;
   ros::Publisher mapped_pub_;
-  std::mutex mutex_;  // guards slam_
-  std::shared_ptr<ecar::SlamSystem> slam_;
-  size_t reported_loops_ = 0;  // loop closer's thread only
+  std::mutex mutex_;  // guards maps_
+  std::map<ecar::MapId, std::shared_ptr<ecar::SlamSystem>> maps_;
+  size_t reported_loops_ = 0;  // guarded by the graph's event serialisation
 };
 
 }  // namespace ecar_server

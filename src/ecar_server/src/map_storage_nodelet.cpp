@@ -66,7 +66,7 @@ class MapStorageNodelet : public nodelet::Nodelet {
 
   // Saves the map to the autosave file (nothing before a device connected).
   void autosave(const char* when) {
-    if (autosave_path_.empty() || !graph_ || !graph_->slam()) return;
+    if (autosave_path_.empty() || !graph_ || !graph_->hasMap()) return;
     try {
       const ecar::MapCounts c = graph_->save(autosave_path_);
       NODELET_DEBUG("autosave (%s): %s", when, describe(c).c_str());
@@ -121,6 +121,18 @@ class MapStorageNodelet : public nodelet::Nodelet {
       *counts = graph_->load(path);
       *message = "loaded " + describe(*counts) + " from '" + path + "', map epoch " +
                  std::to_string(graph_->epoch());
+      if (!counts->orphan_objects.empty()) {
+        // Kept in the store (and in the next save), shown to no device.
+        std::string ids;
+        for (const ecar::ObjectId id : counts->orphan_objects) {
+          ids += (ids.empty() ? "" : ", ") + std::to_string(id.value);
+        }
+        *message += "; " + std::to_string(counts->orphan_objects.size()) +
+                    " virtual objects belong to a map the file does not hold (kept, shown to "
+                    "no device): " +
+                    ids;
+        NODELET_WARN("%s", message->c_str());
+      }
       return true;
     } catch (const std::exception& e) {
       *message = e.what();
@@ -131,8 +143,9 @@ class MapStorageNodelet : public nodelet::Nodelet {
   static std::string describe(const ecar::MapCounts& c) {
     char text[200];
     std::snprintf(text, sizeof(text),
-                  "%u keyframes, %u map points, %u planes, %u objects (%zu bytes, %.0f ms)",
-                  c.keyframes, c.map_points, c.planes, c.objects, c.bytes, c.milliseconds);
+                  "%u maps, %u keyframes, %u map points, %u planes, %u objects (%zu bytes, "
+                  "%.0f ms)",
+                  c.maps, c.keyframes, c.map_points, c.planes, c.objects, c.bytes, c.milliseconds);
     return text;
   }
 

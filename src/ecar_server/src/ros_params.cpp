@@ -56,6 +56,10 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("loop_min_inliers", &c.loop_min_inliers);
   r.read("loop_global_ba", &c.loop_global_ba);
   r.read("camera_tolerance", &c.camera_tolerance);
+  r.read("several_maps", &c.several_maps);
+  r.read("new_map_after_lost", &c.new_map_after_lost);
+  r.read("merge_maps", &c.merge_maps);
+  r.read("merge_probe_every", &c.merge_probe_every);
   r.read("map_file", &c.map_file);
   c.map_file = expandHome(c.map_file);
   r.read("autosave_file", &c.autosave_file);

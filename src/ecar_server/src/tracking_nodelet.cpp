@@ -1,4 +1,5 @@
-// Tracking (the paper's coordinate alignment; core: ecar::SlamSystem::track):
+// Tracking (the paper's coordinate alignment; core: ecar::GlobalGraph::track,
+// which aligns in the device's map of the atlas):
 // subscribes /<device>/upload for every registered device, checks each
 // upload, and aligns it on a worker pool (DeviceWorkQueue: one device's
 // uploads in order); publishes the result on /ecar/tracked_frame (zero-copy to
@@ -35,11 +36,6 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
     pool_.reset();  // joins the workers before the members they use go
   }
 
-  void onSlamCreated(const std::shared_ptr<ecar::SlamSystem>& slam) override {
-    std::lock_guard<std::mutex> lock(mutex_);
-    slam_ = slam;
-  }
-
   void onDeviceAdded(const ecar::DeviceInfo& device) override {
     const std::string name = device.name;
     const boost::function<void(const ecar_msgs::Upload::ConstPtr&)> callback =
@@ -52,16 +48,13 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
   }
 
   void onDeviceRemoved(const ecar::DeviceInfo& device) override {
-    std::shared_ptr<ecar::SlamSystem> slam;
     {
       std::lock_guard<std::mutex> lock(mutex_);
       subscribers_.erase(device.name);
-      slam = slam_;
     }
     const ecar::DeviceId id = device.id;
-    pool_->removeDevice(device.name, [slam, id] {
-      if (slam) slam->removeDevice(id);
-    });
+    const std::shared_ptr<ecar::GlobalGraph> graph = graph_;
+    pool_->removeDevice(device.name, [graph, id] { graph->removeDevice(id); });
   }
 
  private:
@@ -126,13 +119,8 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
   // On a worker: decode, align, publish.
   void align(const std::string& device, const ecar_msgs::Upload::ConstPtr& msg,
              const ecar_bridge::UploadContent& content, const ros::Time& received) {
-    std::shared_ptr<ecar::SlamSystem> slam;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      slam = slam_;
-    }
     const std::optional<ecar::DeviceInfo> info = graph_->devices().device(device);
-    if (!slam || !info) return;  // disconnected meanwhile
+    if (!info) return;  // disconnected meanwhile
     cv::Mat image;
     try {
       image = ecar_bridge::decodeImage(*msg);
@@ -141,7 +129,8 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
                             msg->frame_index, e.what());
       return;
     }
-    const ecar::CameraPtr camera = slam->camera(info->id);
+    const ecar::CameraPtr camera = graph_->camera(device);
+    if (!camera) return;
     if (image.cols != camera->width() || image.rows != camera->height()) {
       NODELET_WARN_THROTTLE(2.0,
                             "device %s: upload frame %u: image is %dx%d, not the connected "
@@ -152,8 +141,8 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
     }
     const auto t0 = std::chrono::steady_clock::now();
     const ecar::TrackResult result =
-        slam->track(info->id, image, msg->header.stamp.toSec(), msg->frame_index, content.gravity_c,
-                    content.T_o_c);
+        graph_->track(info->id, image, msg->header.stamp.toSec(), msg->frame_index,
+                      content.gravity_c, content.T_o_c);
     ecar_bridge::FrameMeta meta;
     meta.device = device;
     meta.frame_index = msg->frame_index;
@@ -175,8 +164,7 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
   std::shared_ptr<ecar::GlobalGraph> graph_;
   std::unique_ptr<DeviceWorkQueue> pool_;
   ros::Publisher tracked_pub_;
-  std::mutex mutex_;  // guards slam_ and subscribers_
-  std::shared_ptr<ecar::SlamSystem> slam_;
+  std::mutex mutex_;  // guards subscribers_
   std::map<std::string, ros::Subscriber> subscribers_;
 };
 

@@ -3,6 +3,7 @@
 // show the map points, keyframes and cameras (markers.h mapMarkers, from the
 // core's mapOverview), the planes coloured by label, the live virtual objects
 // and the cells each device last saw (/ecar/visible_structure).
+#include <algorithm>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -75,7 +76,7 @@ class VisualizerNodelet : public nodelet::Nodelet, public ecar::GraphListener {
     }
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      cameras_[info->name] = CameraMarker{info->id, T_w_c};
+      cameras_[info->name] = {CameraMarker{info->id, T_w_c}, ecar::MapId(msg->map_id)};
     }
     std_msgs::Header header;
     header.stamp = msg->header.stamp;
@@ -99,14 +100,21 @@ class VisualizerNodelet : public nodelet::Nodelet, public ecar::GraphListener {
 
   void onTimer(const ros::WallTimerEvent&) {
     if (markers_pub_.getNumSubscribers() == 0) return;
-    const std::shared_ptr<ecar::SlamSystem> slam = graph_->slam();
+    // The largest map of the atlas, with the devices tracked in it (the
+    // others' maps have coordinates of their own).
+    const ecar::MapId shown = graph_->largestMap();
+    const std::shared_ptr<ecar::SlamSystem> slam = graph_->map(shown);
     if (!slam) return;
     std::vector<CameraMarker> cameras;
     std::vector<DeviceCells> cells;
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      for (const auto& kv : cameras_) cameras.push_back(kv.second);
+      for (const auto& kv : cameras_) {
+        if (kv.second.second == shown) cameras.push_back(kv.second.first);
+      }
       for (const auto& kv : cells_) {
+        const auto camera = cameras_.find(kv.first);
+        if (camera == cameras_.end() || camera->second.second != shown) continue;
         const std::optional<ecar::DeviceInfo> info = graph_->devices().device(kv.first);
         if (info) cells.push_back(DeviceCells{info->id, kv.second});
       }
@@ -121,9 +129,16 @@ class VisualizerNodelet : public nodelet::Nodelet, public ecar::GraphListener {
     visualization_msgs::MarkerArray map =
         mapMarkers(ecar::mapOverview(slam->map()), cameras, ecar_bridge::kMapFrame, now);
     markers->markers.insert(markers->markers.end(), map.markers.begin(), map.markers.end());
+    std::vector<ecar::Plane> planes = graph_->planes().planes();
+    planes.erase(std::remove_if(planes.begin(), planes.end(),
+                                [&](const ecar::Plane& p) { return p.map != shown; }),
+                 planes.end());
+    std::vector<ecar::VirtualObject> objects = graph_->vos().allObjects();
+    objects.erase(std::remove_if(objects.begin(), objects.end(),
+                                 [&](const ecar::VirtualObject& vo) { return vo.map != shown; }),
+                  objects.end());
     visualization_msgs::MarkerArray more =
-        structureMarkers(graph_->planes().planes(), graph_->vos().allObjects(), cells, cell_size_,
-                         ecar_bridge::kMapFrame, now);
+        structureMarkers(planes, objects, cells, cell_size_, ecar_bridge::kMapFrame, now);
     markers->markers.insert(markers->markers.end(), more.markers.begin(), more.markers.end());
     markers_pub_.publish(markers);
   }
@@ -135,7 +150,8 @@ class VisualizerNodelet : public nodelet::Nodelet, public ecar::GraphListener {
   ros::WallTimer timer_;
   tf2_ros::TransformBroadcaster tf_;
   std::mutex mutex_;  // guards cameras_ and cells_
-  std::map<std::string, CameraMarker> cameras_;
+  /// Each device's last aligned pose and the map it is in.
+  std::map<std::string, std::pair<CameraMarker, ecar::MapId>> cameras_;
   std::map<std::string, std::vector<ecar::CellKey>> cells_;  ///< per device, its last upload's
 };
 

@@ -370,11 +370,14 @@ def saved_planes(path):
         sections[name] = (offset, length)
         at += 1 + n + 20
     at = sections["planes"][0]
-    _, _, planes = struct.unpack_from("<III", data, at)
+    section_version, _, planes = struct.unpack_from("<III", data, at)
     at += 12
     out = {}
     for _ in range(planes):
-        pid, label = struct.unpack_from("<IB", data, at)
+        pid = struct.unpack_from("<I", data, at)[0]
+        if section_version >= 2:  # the plane's atlas map id follows its id
+            at += 4
+        label = struct.unpack_from("<B", data, at + 4)[0]
         offset, version = struct.unpack_from("<dI", data, at + 5 + 24)
         at += 5 + 24 + 8 + 8
         boundary = struct.unpack_from("<I", data, at)[0]

@@ -355,4 +355,59 @@ PinholeCamera decodeSlamCamera(ByteReader in) {
   return *readCameras(&in, version).front();
 }
 
+namespace {
+constexpr const char* kAtlasSection = "atlas";
+constexpr uint32_t kAtlasSectionVersion = 1;
+constexpr uint32_t kMaxMaps = 4096;
+
+std::string slamSectionOf(MapId id, bool first) {
+  return first ? std::string(kSlamSection)
+               : std::string(kSlamSection) + "." + std::to_string(id.value);
+}
+}  // namespace
+
+void addAtlasSections(MapFileWriter* writer,
+                      std::vector<std::pair<MapId, std::vector<uint8_t>>> maps) {
+  ByteWriter atlas;
+  atlas.u32(kAtlasSectionVersion);
+  atlas.u32(static_cast<uint32_t>(maps.size()));
+  for (const auto& m : maps) atlas.u32(m.first.value);
+  writer->addSection(kAtlasSection, atlas.release());
+  for (size_t i = 0; i < maps.size(); ++i) {
+    writer->addSection(slamSectionOf(maps[i].first, i == 0), std::move(maps[i].second));
+  }
+}
+
+std::vector<std::pair<MapId, std::string>> atlasSections(const MapFileReader& file) {
+  std::vector<std::pair<MapId, std::string>> out;
+  if (!file.has(kAtlasSection)) {
+    out.emplace_back(MapId(1), kSlamSection);
+    return out;
+  }
+  ByteReader in = file.reader(kAtlasSection);
+  const uint32_t version = in.u32("version");
+  if (version != kAtlasSectionVersion) {
+    in.fail("version", "atlas section version " + std::to_string(version) +
+                           ", this build reads version " + std::to_string(kAtlasSectionVersion));
+  }
+  const uint32_t count = in.count("map count", 4);
+  if (count < 1 || count > kMaxMaps) {
+    in.fail("map count", std::to_string(count) + " maps (1 to " + std::to_string(kMaxMaps) + ")");
+  }
+  for (uint32_t k = 0; k < count; ++k) {
+    const MapId id(in.u32("map id"));
+    for (const auto& o : out) {
+      if (o.first == id) in.fail("map id", "map " + std::to_string(id.value) + " twice");
+    }
+    if (!id.valid()) in.fail("map id", "0");
+    out.emplace_back(id, slamSectionOf(id, k == 0));
+    if (!file.has(out.back().second)) {
+      in.fail("map id",
+              "map " + std::to_string(id.value) + " has no section '" + out.back().second + "'");
+    }
+  }
+  in.expectEnd();
+  return out;
+}
+
 }  // namespace ecar

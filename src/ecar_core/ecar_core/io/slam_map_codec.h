@@ -8,6 +8,7 @@
 
 #include "ecar_core/common/camera.h"
 #include "ecar_core/io/byte_codec.h"
+#include "ecar_core/io/map_file.h"
 #include "ecar_core/slam/map.h"
 
 namespace ecar {
@@ -36,5 +37,16 @@ std::unique_ptr<Map> decodeSlamMap(ByteReader in, const ScaleInfo& scale);
 /// system for a map loaded before any device connected. Throws ecar::Error
 /// as decodeSlamMap() does.
 PinholeCamera decodeSlamCamera(ByteReader in);
+
+/// An atlas in a map file: section "atlas" (version 1, the number of maps,
+/// their ids) and each map's SLAM section, the first map's as "slam" (what a
+/// one-map reader reads), the others' as "slam.<id>".
+void addAtlasSections(MapFileWriter* writer,
+                      std::vector<std::pair<MapId, std::vector<uint8_t>>> maps);
+/// The maps of a file with the names of their SLAM sections; a file without
+/// an atlas section (an older build's) holds map 1 in "slam". Throws
+/// ecar::Error naming the section and field (no map, id 0 or twice, a
+/// missing section).
+std::vector<std::pair<MapId, std::string>> atlasSections(const MapFileReader& file);
 
 }  // namespace ecar

@@ -11,17 +11,23 @@ namespace ecar {
 namespace {
 
 // Layouts of the structure sections (independent of the container's).
-constexpr uint32_t kPlanesSectionVersion = 1;
+// Version 2 of planes and vos adds each one's atlas map id (version 1, still
+// read, had one map: id 1).
+constexpr uint32_t kPlanesSectionVersion = 2;
 constexpr uint32_t kGridSectionVersion = 1;
-constexpr uint32_t kVosSectionVersion = 1;
+constexpr uint32_t kVosSectionVersion = 2;
 constexpr size_t kMaxOwnerBytes = 4096;
 
-void checkVersion(ByteReader* in, const char* section, uint32_t expected) {
+/// Reads the section version: `expected` or, when given, `oldest` up to it.
+uint32_t checkVersion(ByteReader* in, const char* section, uint32_t expected, uint32_t oldest = 0) {
   const uint32_t version = in->u32("version");
-  if (version != expected) {
+  if (version != expected && (oldest == 0 || version < oldest || version > expected)) {
     in->fail("version", std::string(section) + " section version " + std::to_string(version) +
-                            ", this build reads version " + std::to_string(expected));
+                            ", this build reads version " +
+                            (oldest ? std::to_string(oldest) + " to " : std::string()) +
+                            std::to_string(expected));
   }
+  return version;
 }
 
 }  // namespace
@@ -34,6 +40,7 @@ std::vector<uint8_t> encodePlanes(const std::vector<PlaneRecord>& planes, uint32
   for (const PlaneRecord& r : planes) {
     const Plane& p = r.plane;
     out.u32(p.id.value);
+    out.u32(p.map.value);
     out.u8(static_cast<uint8_t>(p.label));
     out.vec3(p.normal);
     out.f64(p.offset);
@@ -53,7 +60,7 @@ std::vector<uint8_t> encodePlanes(const std::vector<PlaneRecord>& planes, uint32
 }
 
 std::vector<PlaneRecord> decodePlanes(ByteReader in, uint32_t* next_id) {
-  checkVersion(&in, kPlanesSection, kPlanesSectionVersion);
+  const uint32_t version = checkVersion(&in, kPlanesSection, kPlanesSectionVersion, 1);
   const uint32_t next = in.u32("next plane id");
   if (next < 1) in.fail("next plane id", "0");
   const uint32_t count = in.count("plane count", 4 + 1 + 24 + 8 + 4 + 4 + 12);
@@ -71,6 +78,7 @@ std::vector<PlaneRecord> decodePlanes(ByteReader in, uint32_t* next_id) {
                         " is 0, duplicate or not below the next id " + std::to_string(next));
     }
     in.setScope("plane " + std::to_string(p.id.value));
+    p.map = version >= 2 ? MapId(in.u32("map")) : MapId(1);
     const uint8_t label = in.u8("label");
     if (label > static_cast<uint8_t>(PlaneLabel::kOther)) {
       in.fail("label", "unknown label " + std::to_string(label));
@@ -169,6 +177,7 @@ std::vector<uint8_t> encodeVos(const VoSnapshot& vos) {
   for (const VoRecord& r : vos.objects) {
     const VirtualObject& vo = r.vo;
     out.u32(vo.id.value);
+    out.u32(vo.map.value);
     out.u8(static_cast<uint8_t>(vo.kind));
     out.vec3(vo.position);
     out.vec3(vo.start);
@@ -190,7 +199,7 @@ std::vector<uint8_t> encodeVos(const VoSnapshot& vos) {
 }
 
 VoSnapshot decodeVos(ByteReader in) {
-  checkVersion(&in, kVosSection, kVosSectionVersion);
+  const uint32_t version = checkVersion(&in, kVosSection, kVosSectionVersion, 1);
   VoSnapshot vos;
   vos.next_id = ObjectId(in.u32("next object id"));
   if (!vos.next_id.valid()) in.fail("next object id", "0");
@@ -203,6 +212,7 @@ VoSnapshot decodeVos(ByteReader in) {
     VirtualObject& vo = r.vo;
     vo.id = ObjectId(in.u32("id"));
     in.setScope("object " + std::to_string(vo.id.value));
+    vo.map = version >= 2 ? MapId(in.u32("map")) : MapId(1);
     const uint8_t kind = in.u8("kind");
     if (kind > static_cast<uint8_t>(VoKind::kAnchor)) {
       in.fail("kind", "unknown kind " + std::to_string(kind));

@@ -13,7 +13,6 @@ namespace ecar {
 GridConnection::GridConnection(GlobalGraph* graph, const GridConnectionConfig& config)
     : graph_(graph), config_(config) {
   if (!graph_) throw Error("GridConnection: no global graph");
-  grid_planes_ = std::make_shared<const GridPlanes>();
 }
 
 std::shared_ptr<const GridCaster> GridConnection::caster(const CameraPtr& camera) {
@@ -26,37 +25,45 @@ std::shared_ptr<const GridCaster> GridConnection::caster(const CameraPtr& camera
   return casters_.back().second;
 }
 
-std::shared_ptr<const GridPlanes> GridConnection::gridPlanes() {
+std::shared_ptr<const GridPlanes> GridConnection::gridPlanes(MapId map) {
   const uint64_t revision = graph_->planes().revision();
   const uint64_t generation = graph_->generation();
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (revision == grid_planes_revision_ && generation == grid_planes_generation_) {
-      return grid_planes_;
+    const auto it = grid_planes_.find(map);
+    if (it != grid_planes_.end() && revision == it->second.revision &&
+        generation == it->second.generation) {
+      return it->second.planes;
     }
   }
-  auto snapshot = std::make_shared<const GridPlanes>(graph_->planes().planes(),
-                                                     graph_->config().grid.boundary_margin);
+  std::vector<Plane> planes = graph_->planes().planes();
+  planes.erase(
+      std::remove_if(planes.begin(), planes.end(), [&](const Plane& p) { return p.map != map; }),
+      planes.end());
+  auto snapshot = std::make_shared<const GridPlanes>(planes, graph_->config().grid.boundary_margin);
   std::lock_guard<std::mutex> lock(mutex_);
-  grid_planes_ = std::move(snapshot);
-  grid_planes_revision_ = revision;
-  grid_planes_generation_ = generation;
-  return grid_planes_;
+  // Snapshots of maps merged away or replaced go with the next change.
+  for (auto it = grid_planes_.begin(); it != grid_planes_.end();) {
+    it = it->second.generation != generation ? grid_planes_.erase(it) : std::next(it);
+  }
+  grid_planes_[map] = {snapshot, revision, generation};
+  return snapshot;
 }
 
 size_t GridConnection::linkKeyFrame(const KeyFramePlanes& keyframe) {
   if (!keyframe.done()) return 0;
-  const std::shared_ptr<SlamSystem> slam = graph_->slam();
+  MapId map;
+  const std::shared_ptr<SlamSystem> slam = graph_->mapOfKeyFrame(keyframe.keyframe, &map);
   if (!slam) return 0;
   // The keyframe's own camera; its device's when it was culled meanwhile.
   CameraPtr camera = keyframeCamera(slam->map(), keyframe.keyframe);
-  if (!camera) camera = slam->camera(keyframe.device);
+  if (!camera) camera = graph_->camera(graph_->devices().name(keyframe.device));
   const std::shared_ptr<const GridCaster> grid = caster(camera);
   if (!grid) return 0;
   auto structure = graph_->structureLock();
   if (graph_->epoch() != keyframe.map_epoch) return 0;  // from a replaced map
   std::vector<CellKey> cells;
-  grid->visibleCells(keyframe.T_w_c, *gridPlanes(), &cells);
+  grid->visibleCells(keyframe.T_w_c, *gridPlanes(map), &cells);
   const size_t n = cells.size();
   graph_->grid().setKeyFrameCells(keyframe.keyframe, std::move(cells));
   return n;
@@ -71,8 +78,12 @@ VoOutcome GridConnection::apply(const VoRequest& r) {
     case VoRequestType::kRegister: {
       VirtualObject vo = r.object;
       vo.owner = r.device;
+      // In the map the device tracks in (rviz: the largest map).
+      const std::optional<DeviceInfo> device = graph_->devices().device(r.device);
+      vo.map = device ? graph_->mapOf(device->id) : MapId();
+      if (!vo.map.valid()) vo.map = graph_->largestMap();
       KeyFrameId keyframe;
-      const std::shared_ptr<SlamSystem> slam = graph_->slam();
+      const std::shared_ptr<SlamSystem> slam = graph_->map(vo.map);
       if (store.attachMode() == VoAttachMode::kKeyFrame && slam) {
         // Where the store will put it: a line's centre, an anchor's point.
         const Eigen::Vector3d at =
@@ -109,7 +120,7 @@ VisibleStructure GridConnection::visible(const TrackResult& frame, const std::st
     out.stale = true;
     return out;
   }
-  const std::shared_ptr<const GridPlanes> planes = gridPlanes();
+  const std::shared_ptr<const GridPlanes> planes = gridPlanes(frame.map);
   thread_local std::vector<SampleHit> hits;
   grid->castSamples(frame.T_w_c, *planes, &hits);
   std::set<PlaneId> plane_ids;
@@ -130,11 +141,16 @@ VisibleStructure GridConnection::visible(const TrackResult& frame, const std::st
     const VoStore& store = graph_->vos();
     if (store.attachMode() == VoAttachMode::kKeyFrame) {
       out.objects = store.objectsOfKeyFrames(frame.local_keyframes);
+      out.objects.erase(
+          std::remove_if(out.objects.begin(), out.objects.end(),
+                         [&](const VirtualObject& vo) { return vo.map != frame.map; }),
+          out.objects.end());
     } else {
       // Cells with radius 1 (a floor along a cell border), then the exact
       // per-point test for the rest: the sampled rays miss most far floor cells.
       const GridMap& links = graph_->grid();
       store.forEachLive([&](const VirtualObject& vo) {
+        if (vo.map != frame.map) return;  // another map's coordinates
         bool seen = false;
         for (const CellKey& cell : links.cellsOfObject(vo.id)) {
           if (containsCell(out.cells, cell, 1)) {

@@ -28,6 +28,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "ecar_core/common/types.h"
@@ -82,8 +83,9 @@ class GridConnection {
  private:
   /// The caster of a camera (built once per camera; null for a null camera).
   std::shared_ptr<const GridCaster> caster(const CameraPtr& camera);
-  /// The current planes prepared for casting (rebuilt when they changed).
-  std::shared_ptr<const GridPlanes> gridPlanes();
+  /// The current planes of a map prepared for casting (rebuilt when they
+  /// changed).
+  std::shared_ptr<const GridPlanes> gridPlanes(MapId map);
 
   GlobalGraph* graph_;
   const GridConnectionConfig config_;
@@ -91,9 +93,11 @@ class GridConnection {
   std::mutex mutex_;        // guards the members below
   /// One caster per camera (a few cameras: a short list).
   std::vector<std::pair<CameraPtr, std::shared_ptr<const GridCaster>>> casters_;
-  std::shared_ptr<const GridPlanes> grid_planes_;
-  uint64_t grid_planes_revision_ = 0;
-  uint64_t grid_planes_generation_ = 0;
+  struct Snapshot {
+    std::shared_ptr<const GridPlanes> planes;
+    uint64_t revision = 0, generation = 0;
+  };
+  std::unordered_map<MapId, Snapshot> grid_planes_;
 };
 
 }  // namespace ecar

@@ -17,9 +17,10 @@ KeyFramePlanes PlaneSegmentation::process(KeyFrameId keyframe,
                                           const std::optional<Eigen::Vector3d>& gravity_c) const {
   KeyFramePlanes out;
   out.keyframe = keyframe;
-  const std::shared_ptr<SlamSystem> slam = graph_->slam();
+  MapId map;
+  const std::shared_ptr<SlamSystem> slam = graph_->mapOfKeyFrame(keyframe, &map);
   if (!slam) {
-    out.skipped = "no map yet";
+    out.skipped = "its map is gone";
     return out;
   }
   const std::optional<KeyFrameNeighbourhood> around =
@@ -40,6 +41,7 @@ KeyFramePlanes PlaneSegmentation::process(KeyFrameId keyframe,
   }
   PlaneKeyFrameInput input;
   input.keyframe = keyframe;
+  input.map = map;
   input.camera_center_w = around->T_w_c.translation();
   input.up_w = upFromGravity(around->T_w_c, *gravity);
   input.points.reserve(around->points.size());

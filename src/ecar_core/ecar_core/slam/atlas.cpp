@@ -4,6 +4,7 @@
 #include <chrono>
 #include <map>
 
+#include "ecar_core/common/error.h"
 #include "ecar_core/common/timing.h"
 #include "ecar_core/slam/map_merge.h"
 #include "ecar_core/slam/place_verification.h"
@@ -19,8 +20,155 @@ bool initialised(const SlamSystem& slam) {
 
 }  // namespace
 
+void AtlasConfig::validate() const {
+  const auto fail = [](const std::string& key, const std::string& why) {
+    throw Error("atlas." + key + ": " + why);
+  };
+  if (new_map_after_lost < 0) fail("new_map_after_lost", "must be >= 0");
+  if (merge_candidates < 1) fail("merge_candidates", "must be >= 1");
+  if (relocalise_every < 0) fail("relocalise_every", "must be >= 0");
+  if (relocalise_min_inliers < 3) fail("relocalise_min_inliers", "must be >= 3");
+  if (id_range < 1000) fail("id_range", "must be >= 1000");
+}
+
 Atlas::Atlas(const PinholeCamera& camera, const SlamConfig& config, const AtlasConfig& atlas)
-    : camera_(camera), config_(config), atlas_(atlas) {}
+    : camera_(camera),
+      config_(config),
+      atlas_((atlas.validate(), atlas)),
+      epoch_(std::max<uint32_t>(1, config.first_epoch)) {}
+
+void Atlas::setCallbacks(AtlasCallbacks callbacks) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  callbacks_ = std::move(callbacks);
+}
+
+MapId Atlas::addMap() {
+  MapId id;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    id = newMap();
+  }
+  announce();
+  return id;
+}
+
+PinholeCamera Atlas::camera(DeviceId device) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = cameras_.find(device);
+  return it == cameras_.end() ? camera_ : it->second;
+}
+
+void Atlas::announce() {
+  std::lock_guard<std::mutex> order(announce_mutex_);
+  std::vector<Entry> created;
+  std::vector<MapId> removed;
+  AtlasCallbacks callbacks;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    created.swap(created_);
+    removed.swap(removed_);
+    callbacks = callbacks_;
+  }
+  for (const Entry& e : created) {
+    if (callbacks.created) callbacks.created(e.id, e.slam);
+  }
+  for (const MapId id : removed) {
+    if (callbacks.removed) callbacks.removed(id);
+  }
+}
+
+void Atlas::dropMap(MapId id) {
+  const auto it =
+      std::find_if(maps_.begin(), maps_.end(), [&](const Entry& e) { return e.id == id; });
+  if (it == maps_.end()) return;
+  maps_.erase(it);
+  removed_.push_back(id);
+}
+
+void Atlas::removeDevice(DeviceId device) {
+  std::vector<std::shared_ptr<SlamSystem>> maps;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    devices_.erase(device);
+    for (const Entry& e : maps_) maps.push_back(e.slam);
+  }
+  for (const auto& s : maps) s->removeDevice(device);
+}
+
+uint32_t Atlas::epoch() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return epoch_;
+}
+
+MapId Atlas::mapOfKeyFrame(KeyFrameId keyframe) const {
+  if (!keyframe.valid()) return MapId();
+  std::lock_guard<std::mutex> lock(mutex_);
+  MapId id((keyframe.value - 1) / atlas_.id_range + 1);
+  for (auto it = merged_into_.find(id); it != merged_into_.end(); it = merged_into_.find(id)) {
+    id = it->second.first;
+  }
+  return slamOf(id) ? id : MapId();
+}
+
+void Atlas::install(std::vector<std::pair<MapId, std::unique_ptr<Map>>> maps,
+                    const std::function<void()>& first) {
+  for (size_t i = 0; i < maps.size(); ++i) {
+    if (!maps[i].first.valid()) throw Error("atlas: map id 0");
+    if (!maps[i].second)
+      throw Error("atlas: map " + std::to_string(maps[i].first.value) + " is missing");
+    for (size_t j = 0; j < i; ++j) {
+      if (maps[j].first == maps[i].first) {
+        throw Error("atlas: map " + std::to_string(maps[i].first.value) + " given twice");
+      }
+    }
+  }
+  std::vector<std::shared_ptr<SlamSystem>> old;
+  {
+    std::unique_lock<std::shared_mutex> session(session_mutex_);  // no track() runs
+    uint32_t before = 0;
+    {
+      // The epoch moves on first: whatever was aligned before is stale from
+      // now on, also while `first` replaces what hangs on the maps.
+      std::lock_guard<std::mutex> lock(mutex_);
+      before = epoch_;
+      uint32_t epoch = epoch_;
+      for (const Entry& e : maps_) {
+        auto ml = e.slam->map().readLock();
+        epoch = std::max(epoch, e.slam->map().epoch());
+      }
+      for (const auto& m : maps) epoch = std::max(epoch, m.second->epoch());
+      epoch_ = epoch + 1;
+    }
+    try {
+      if (first) first();
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      epoch_ = before;
+      throw;
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const Entry& e : maps_) {
+      old.push_back(e.slam);
+      removed_.push_back(e.id);
+    }
+    maps_.clear();
+    devices_.clear();
+    merged_into_.clear();
+    next_map_ = 1;
+    for (auto& [id, map] : maps) {
+      newMap(id);
+      const std::shared_ptr<SlamSystem> slam = maps_.back().slam;
+      slam->installMap(std::move(map));
+      auto wl = slam->map().writeLock();
+      slam->map().setCounters(slam->map().nextKeyFrameId(), slam->map().nextPointId(), epoch_);
+    }
+  }
+  for (const auto& s : old) {
+    s->mapper().stopThread();
+    s->loopCloser().stopThread();
+  }
+  announce();
+}
 
 Atlas::~Atlas() { finish(); }
 
@@ -38,10 +186,11 @@ void Atlas::finish() {
   }
 }
 
-void Atlas::setCamera(DeviceId device, const PinholeCamera& camera) {
+void Atlas::setCamera(DeviceId device, const PinholeCamera& camera, double tolerance) {
   std::lock_guard<std::mutex> lock(mutex_);
   cameras_.insert_or_assign(device, camera);
-  for (const Entry& e : maps_) e.slam->setCamera(device, camera);
+  camera_tolerance_ = tolerance;
+  for (const Entry& e : maps_) e.slam->setCamera(device, camera, tolerance);
 }
 
 std::shared_ptr<SlamSystem> Atlas::slamOf(MapId id) const {
@@ -51,17 +200,23 @@ std::shared_ptr<SlamSystem> Atlas::slamOf(MapId id) const {
   return nullptr;
 }
 
-MapId Atlas::newMap() {
-  const MapId id(next_map_++);
-  auto slam = std::make_shared<SlamSystem>(camera_, config_);
+MapId Atlas::newMap(MapId id) {
+  if (!id.valid()) id = MapId(next_map_);
+  next_map_ = std::max(next_map_, id.value + 1);
+  SlamConfig config = config_;
+  config.first_epoch = epoch_;
+  auto slam = std::make_shared<SlamSystem>(camera_, config);
   {
     // Disjoint id ranges: a merge moves keyframes and points as they are.
     const uint32_t base = (id.value - 1) * atlas_.id_range + 1;
     auto lock = slam->map().writeLock();
-    slam->map().setCounters(KeyFrameId(base), MapPointId(base), slam->map().epoch());
+    slam->map().setCounters(KeyFrameId(base), MapPointId(base), epoch_);
   }
-  for (const auto& [device, camera] : cameras_) slam->setCamera(device, camera);
-  maps_.push_back({id, std::move(slam)});
+  for (const auto& [device, camera] : cameras_) {
+    slam->setCamera(device, camera, camera_tolerance_);
+  }
+  maps_.push_back({id, slam});
+  created_.push_back({id, std::move(slam)});
   return id;
 }
 
@@ -102,6 +257,7 @@ TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp
         if (e.id != current_id && e.id != fresh_id) others.emplace_back(e.id, e.slam);
       }
     }
+    announce();  // a map made for this device gets its callbacks before use
     const auto track_in = [&](SlamSystem& s) {
       return s.track(device, image, timestamp, frame_index, gravity_c, T_o_c);
     };
@@ -111,16 +267,13 @@ TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp
       Device& d = devices_[device];
       if (d.fresh.valid() && d.fresh != id) {
         const std::shared_ptr<SlamSystem> f = slamOf(d.fresh);
-        if (f && !initialised(*f)) {
-          maps_.erase(std::remove_if(maps_.begin(), maps_.end(),
-                                     [&](const Entry& e) { return e.id == d.fresh; }),
-                      maps_.end());
-        }
+        if (f && !initialised(*f)) dropMap(d.fresh);
       }
       d.fresh = MapId();
       d.current = id;
       d.lost = 0;
       *map = id;
+      result.map = id;
       if (r.new_keyframe) new_keyframe.emplace(id, *r.new_keyframe);
     };
     bool done = false;
@@ -169,11 +322,16 @@ TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp
     }
   }
   if (found) {
-    std::unique_lock<std::shared_mutex> session(session_mutex_);
-    doMerge(*found, std::chrono::steady_clock::now());
+    std::shared_ptr<SlamSystem> merged;
+    {
+      std::unique_lock<std::shared_mutex> session(session_mutex_);
+      merged = doMerge(*found, std::chrono::steady_clock::now());
+    }
+    adjustMerged(merged);
   } else if (new_keyframe && atlas_.merge) {
     tryMerge(new_keyframe->first, new_keyframe->second, device);
   }
+  announce();
   return result;
 }
 
@@ -224,7 +382,16 @@ std::optional<Atlas::MergeCandidate> Atlas::relocalisedOverlap(MapId a_id, const
 
 void Atlas::tryMerge(MapId map_id, KeyFrameId keyframe, DeviceId device) {
   const auto start = std::chrono::steady_clock::now();
-  std::unique_lock<std::shared_mutex> session(session_mutex_);  // no track() runs
+  std::shared_ptr<SlamSystem> merged;
+  {
+    std::unique_lock<std::shared_mutex> session(session_mutex_);  // no track() runs
+    merged = findMerge(map_id, keyframe, device, start);
+  }
+  adjustMerged(merged);
+}
+
+std::shared_ptr<SlamSystem> Atlas::findMerge(MapId map_id, KeyFrameId keyframe, DeviceId device,
+                                             std::chrono::steady_clock::time_point start) {
   std::shared_ptr<SlamSystem> a;
   std::vector<std::pair<MapId, std::shared_ptr<SlamSystem>>> others;
   {
@@ -234,13 +401,13 @@ void Atlas::tryMerge(MapId map_id, KeyFrameId keyframe, DeviceId device) {
       if (e.id != map_id) others.emplace_back(e.id, e.slam);
     }
   }
-  if (!a || others.empty()) return;
+  if (!a || others.empty()) return nullptr;
   cv::Mat descriptors;
   bool metric_a = false;
   {
     auto lock = a->map().readLock();
     const KeyFrame* k = a->map().keyframe(keyframe);
-    if (!k || k->features.descriptors.empty()) return;
+    if (!k || k->features.descriptors.empty()) return nullptr;
     descriptors = k->features.descriptors;
     metric_a = a->map().metric();
   }
@@ -259,13 +426,22 @@ void Atlas::tryMerge(MapId map_id, KeyFrameId keyframe, DeviceId device) {
       if (!m) continue;
       MergeCandidate cand{map_id,   b_id,       m->S,   m->duplicates,
                           keyframe, c.keyframe, device, m->inliers};
-      doMerge(cand, start);
-      return;
+      return doMerge(cand, start);
     }
   }
+  return nullptr;
 }
 
-void Atlas::doMerge(const MergeCandidate& c, std::chrono::steady_clock::time_point start) {
+void Atlas::adjustMerged(const std::shared_ptr<SlamSystem>& merged) const {
+  // The whole merged map adjusted at once (as after a loop): the seam holds
+  // only the points seen from both sides so far. Tracking goes on meanwhile;
+  // the correction reaches what hangs on the map through the loop closer's
+  // callback.
+  if (merged && config_.loops.global_ba) merged->loopCloser().bundleAdjustAll();
+}
+
+std::shared_ptr<SlamSystem> Atlas::doMerge(const MergeCandidate& c,
+                                           std::chrono::steady_clock::time_point start) {
   // The smaller map goes into the larger.
   size_t size_a = 0, size_b = 0;
   std::shared_ptr<SlamSystem> a, b;
@@ -274,7 +450,7 @@ void Atlas::doMerge(const MergeCandidate& c, std::chrono::steady_clock::time_poi
     a = slamOf(c.a);
     b = slamOf(c.b);
   }
-  if (!a || !b) return;
+  if (!a || !b) return nullptr;
   {
     auto la = a->map().readLock();
     size_a = a->map().numKeyFrames();
@@ -304,9 +480,6 @@ void Atlas::doMerge(const MergeCandidate& c, std::chrono::steady_clock::time_poi
   if (c.query.valid()) into->mapper().insert(c.query);
   if (c.match.valid()) into->mapper().insert(c.match);
   if (config_.synchronous_mapping) into->mapper().processPending();
-  // The whole merged map adjusted at once (as after a loop): the seam holds
-  // only the points seen from both sides so far.
-  if (config_.loops.global_ba) into->loopCloser().bundleAdjustAll();
   MergeEvent event;
   event.into = into_id;
   event.from = from_id;
@@ -318,18 +491,25 @@ void Atlas::doMerge(const MergeCandidate& c, std::chrono::steady_clock::time_poi
   event.keyframes_moved = r.keyframes_moved;
   event.points_fused = r.points_fused;
   event.S = S;
-  event.ms = msSince(start);
-  std::lock_guard<std::mutex> lock(mutex_);
-  for (const LoopClosure& l : from->loopCloser().closures()) closed_loops_.push_back(l);
-  for (auto& [id, d] : devices_) {
-    if (d.current == from_id) d.current = into_id;
-    if (d.fresh == from_id) d.fresh = MapId();
+  event.correction = std::move(r.correction);
+  std::function<void(const MergeEvent&)> merged;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const LoopClosure& l : from->loopCloser().closures()) closed_loops_.push_back(l);
+    for (auto& [id, d] : devices_) {
+      if (d.current == from_id) d.current = into_id;
+      if (d.fresh == from_id) d.fresh = MapId();
+    }
+    merged_into_[from_id] = {into_id, S};
+    dropMap(from_id);
+    merged = callbacks_.merged;
   }
-  merged_into_[from_id] = {into_id, S};
-  maps_.erase(
-      std::remove_if(maps_.begin(), maps_.end(), [&](const Entry& e) { return e.id == from_id; }),
-      maps_.end());
+  event.ms = msSince(start);  // verification and the SLAM maps' merge
+  // What hangs on the maps moves before any device is answered.
+  if (merged) merged(event);
+  std::lock_guard<std::mutex> lock(mutex_);
   merges_.push_back(event);
+  return into;
 }
 
 std::vector<MapId> Atlas::mapIds() const {

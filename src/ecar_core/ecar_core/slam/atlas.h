@@ -20,11 +20,13 @@
 //   TrackResult r = atlas.track(device, image, stamp, frame, gravity, odometry, &map);
 //
 // Thread-safety: track() of different devices may run concurrently; a merge
-// waits for every running track() and blocks new ones while it moves the map.
-// The offline runner uses it; the server still keeps one map (next step).
+// waits for every running track() and blocks new ones while it moves the map
+// (the global bundle adjustment after it runs outside, in the merging
+// device's track() call). The server's GlobalGraph and the offline runner use it.
 #pragma once
 
 #include <chrono>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -54,8 +56,11 @@ struct AtlasConfig {
   /// the similarity (at least relocalise_min_inliers inliers).
   int relocalise_every = 2;
   int relocalise_min_inliers = 20;
-  /// Ids of map k start at k * id_range + 1.
+  /// Ids of map k start at (k - 1) * id_range + 1.
   uint32_t id_range = 10000000;
+
+  /// Throws ecar::Error naming the first invalid key.
+  void validate() const;
 };
 
 /// One merge: which maps, found by which keyframe, at what cost.
@@ -69,6 +74,19 @@ struct MergeEvent {
   size_t keyframes_moved = 0, points_fused = 0;
   /// The similarity from the merged map's world to the kept map's.
   Sim3 S;
+  /// Every keyframe that moved, with S (its grid links are re-cast).
+  MapCorrection correction;
+};
+
+/// Told about the maps' lives. Calls are made without the atlas's locks.
+struct AtlasCallbacks {
+  /// A new map, before anything is tracked in it (set its SLAM callbacks here).
+  std::function<void(MapId, const std::shared_ptr<SlamSystem>&)> created;
+  /// A map went: merged into another (after `merged`) or an unused fresh map.
+  std::function<void(MapId)> removed;
+  /// Two maps merged (their SLAM maps are one); called while no track() runs,
+  /// before the merging device's upload is answered.
+  std::function<void(const MergeEvent&)> merged;
 };
 
 class Atlas {
@@ -77,7 +95,14 @@ class Atlas {
         const AtlasConfig& atlas = AtlasConfig());
   ~Atlas();
 
-  void setCamera(DeviceId device, const PinholeCamera& camera);
+  /// Before the first track().
+  void setCallbacks(AtlasCallbacks callbacks);
+  /// A new empty map (tools and tests fill it); announced before this returns.
+  MapId addMap();
+  /// Cameras within `tolerance` (PinholeCamera::difference) share one object.
+  void setCamera(DeviceId device, const PinholeCamera& camera, double tolerance = 1e-9);
+  /// The camera a device tracks with (the default camera when never set).
+  PinholeCamera camera(DeviceId device) const;
   /// Tracks one upload of a device in its map (see the file comment); `map`
   /// receives the map the result is in (invalid when none).
   TrackResult track(DeviceId device, const cv::Mat& image, double timestamp, uint32_t frame_index,
@@ -89,6 +114,21 @@ class Atlas {
   std::shared_ptr<SlamSystem> map(MapId id) const;
   /// The map a device tracks in (invalid when none yet).
   MapId mapOf(DeviceId device) const;
+  /// The live map holding a keyframe id (from its id range, through merges;
+  /// invalid when that map is gone).
+  MapId mapOfKeyFrame(KeyFrameId keyframe) const;
+  /// The atlas epoch, shared by every map: moves on with every install().
+  uint32_t epoch() const;
+  /// Forgets a device (its trackers in every map).
+  void removeDevice(DeviceId device);
+  /// Replaces every map by `maps` (a loaded atlas: ids and their maps): the
+  /// old maps' threads finish, every device relocalises with its next upload,
+  /// the epoch moves past every map's. `first` runs before anything changes,
+  /// while no track() runs; when it throws, nothing changes. Throws
+  /// ecar::Error on a duplicate or invalid id or a null map (then nothing
+  /// changed).
+  void install(std::vector<std::pair<MapId, std::unique_ptr<Map>>> maps,
+               const std::function<void()>& first = {});
   std::vector<MergeEvent> merges() const;
   /// Where a map's coordinates went: the similarity from `id`'s world to the
   /// world of the map it was merged into (through every later merge), and
@@ -111,7 +151,13 @@ class Atlas {
     std::shared_ptr<SlamSystem> slam;
   };
   std::shared_ptr<SlamSystem> slamOf(MapId id) const;  // mutex_ held
-  MapId newMap();                                      // mutex_ held
+  /// A new empty map (`id` invalid: the next free id); queued for the
+  /// `created` callback (announce()). mutex_ held.
+  MapId newMap(MapId id = MapId());
+  /// Drops a map (queued for `removed`). mutex_ held.
+  void dropMap(MapId id);
+  /// Tells the callbacks about the maps created and removed. mutex_ not held.
+  void announce();
   /// Two maps found to overlap: a's world -> b's world, and the pairs of
   /// their points that are one physical point (a's, b's).
   struct MergeCandidate {
@@ -130,9 +176,18 @@ class Atlas {
                                                    DeviceId device) const;
   /// Looks for the keyframe's place in the other maps; merges on a match.
   void tryMerge(MapId map, KeyFrameId keyframe, DeviceId device);
+  /// tryMerge's search, the session lock held exclusively; returns the merged
+  /// map (null when none).
+  std::shared_ptr<SlamSystem> findMerge(MapId map, KeyFrameId keyframe, DeviceId device,
+                                        std::chrono::steady_clock::time_point start);
   /// Merges the smaller of the candidate's maps into the larger. The session
   /// lock held exclusively.
-  void doMerge(const MergeCandidate& c, std::chrono::steady_clock::time_point start);
+  /// Returns the merged map, whose global bundle adjustment the caller runs
+  /// once the session lock is released (null when nothing merged).
+  std::shared_ptr<SlamSystem> doMerge(const MergeCandidate& c,
+                                      std::chrono::steady_clock::time_point start);
+  /// Runs after a merge, without the session lock.
+  void adjustMerged(const std::shared_ptr<SlamSystem>& merged) const;
 
   PinholeCamera camera_;
   SlamConfig config_;
@@ -143,10 +198,16 @@ class Atlas {
   std::vector<Entry> maps_;
   std::unordered_map<DeviceId, Device> devices_;
   std::unordered_map<DeviceId, PinholeCamera> cameras_;
+  double camera_tolerance_ = 1e-9;
   std::vector<MergeEvent> merges_;
   std::vector<LoopClosure> closed_loops_;  ///< of maps merged away
   std::unordered_map<MapId, std::pair<MapId, Sim3>> merged_into_;
   uint32_t next_map_ = 1;
+  uint32_t epoch_;
+  AtlasCallbacks callbacks_;
+  std::vector<Entry> created_;  ///< not announced yet
+  std::vector<MapId> removed_;  ///< not announced yet
+  std::mutex announce_mutex_;   // keeps announcements in order
 };
 
 }  // namespace ecar

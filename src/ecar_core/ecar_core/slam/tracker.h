@@ -54,6 +54,9 @@ struct TrackResult {
   /// The map's epoch when the image was aligned (SlamSystem::track): a result
   /// of an older epoch refers to a map that was replaced since.
   uint32_t map_epoch = 0;
+  /// The atlas map the image was aligned in (set by Atlas::track; invalid for
+  /// a lone SlamSystem and when nothing was tracked).
+  MapId map;
 };
 
 class LocalMapper;

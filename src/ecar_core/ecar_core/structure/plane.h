@@ -40,6 +40,9 @@ const char* toString(PlaneLabel label);
 /// One plane as ecar_msgs/Plane carries it (fields map 1:1 onto the message).
 struct Plane {
   PlaneId id;
+  /// The atlas map the plane belongs to (its coordinates are that map's); 0
+  /// where there is one map.
+  MapId map;
   PlaneLabel label = PlaneLabel::kOther;
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  ///< unit, map frame
   double offset = 0.0;                                ///< d in n.x + d = 0, m
@@ -60,6 +63,7 @@ struct PlanePoint {
 /// What the segmentation of one keyframe needs, copied out of the map.
 struct PlaneKeyFrameInput {
   KeyFrameId keyframe;
+  MapId map;  ///< the keyframe's map: its observations join planes of that map only
   /// The map points of the keyframe and of its covisible neighbours, each once.
   std::vector<PlanePoint> points;
   Eigen::Vector3d camera_center_w = Eigen::Vector3d::Zero();  ///< map frame, m

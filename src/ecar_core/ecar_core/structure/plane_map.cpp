@@ -181,7 +181,7 @@ PlaneMapUpdate PlaneMap::integrate(const PlaneKeyFrameInput& input,
     double best_distance = std::numeric_limits<double>::infinity();
     for (const auto& [id, entry] : planes_) {
       double md = 0.0;
-      if (matches(entry, pts, obs.boundary, obs.normal, &md) &&
+      if (entry.plane.map == input.map && matches(entry, pts, obs.boundary, obs.normal, &md) &&
           (md < best_distance || (md == best_distance && id < best))) {
         best = id;
         best_distance = md;
@@ -193,6 +193,7 @@ PlaneMapUpdate PlaneMap::integrate(const PlaneKeyFrameInput& input,
       target = &planes_.at(best);
     } else {
       fresh.plane.id = PlaneId(next_id_);
+      fresh.plane.map = input.map;
       fresh.plane.normal = obs.normal;
       fresh.plane.offset = obs.offset;
       target = &fresh;
@@ -226,6 +227,7 @@ PlaneMapUpdate PlaneMap::integrate(const PlaneKeyFrameInput& input,
       for (auto& [other_id, other] : planes_) {
         if (other_id == touched[t]) continue;
         Entry& self = planes_.at(touched[t]);
+        if (other.plane.map != self.plane.map) continue;
         std::vector<Eigen::Vector3d> pts;
         for (const auto& kv : self.points) pts.push_back(kv.second);
         double md = 0.0;
@@ -362,17 +364,34 @@ size_t PlaneMap::transformPlanes(
     std::sort(keyframes.begin(), keyframes.end());
     const std::optional<Sim3> S = correction(keyframes);
     if (!S) continue;
-    Plane& plane = entry.plane;
-    const Eigen::Vector3d on_plane = *S * (-plane.offset * plane.normal);
-    plane.normal = (S->R * plane.normal).normalized();
-    plane.offset = -plane.normal.dot(on_plane);
-    for (Eigen::Vector3d& b : plane.boundary) b = *S * b;
-    for (auto& [pid, p_w] : entry.points) p_w = *S * p_w;
-    ++plane.version;
+    transform(&entry, *S);
     ++moved;
   }
   if (moved > 0) ++revision_;
   return moved;
+}
+
+size_t PlaneMap::moveMap(MapId from, MapId into, const Sim3& S) {
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  size_t moved = 0;
+  for (auto& [id, entry] : planes_) {
+    if (entry.plane.map != from) continue;
+    transform(&entry, S);
+    entry.plane.map = into;
+    ++moved;
+  }
+  if (moved > 0) ++revision_;
+  return moved;
+}
+
+void PlaneMap::transform(Entry* entry, const Sim3& S) {
+  Plane& plane = entry->plane;
+  const Eigen::Vector3d on_plane = S * (-plane.offset * plane.normal);
+  plane.normal = (S.R * plane.normal).normalized();
+  plane.offset = -plane.normal.dot(on_plane);
+  for (Eigen::Vector3d& b : plane.boundary) b = S * b;
+  for (auto& [pid, p_w] : entry->points) p_w = S * p_w;
+  ++plane.version;
 }
 
 std::vector<PlaneRecord> PlaneMap::save() const {

@@ -89,6 +89,9 @@ class PlaneMap {
   /// moved.
   size_t transformPlanes(
       const std::function<std::optional<Sim3>(const std::vector<KeyFrameId>&)>& correction);
+  /// Moves the planes of map `from` into map `into` through S (a merge):
+  /// transformed as above, version + 1. Returns how many moved.
+  size_t moveMap(MapId from, MapId into, const Sim3& S);
 
   /// Every plane with its points and links, by increasing id.
   std::vector<PlaneRecord> save() const;
@@ -116,6 +119,8 @@ class PlaneMap {
   void reestimate(Entry* entry, const Eigen::Vector3d& camera_center_w,
                   const Eigen::Vector3d& up_w);
   void absorb(Entry* into, Entry* from);
+  /// Moves one plane through S (normal, offset, boundary, points; version + 1).
+  void transform(Entry* entry, const Sim3& S);
 
   PlaneConfig config_;
   mutable std::shared_mutex mutex_;

@@ -21,6 +21,9 @@ enum class VoKind : uint8_t { kLine = 0, kAnchor = 1 };
 /// A virtual object, field for field ecar_msgs/VirtualObject.
 struct VirtualObject {
   ObjectId id;  ///< assigned by the store; ignored in a registration request
+  /// The atlas map whose coordinates position, start and end are in (0 where
+  /// there is one map). A merge moves the object into the merged map.
+  MapId map;
   VoKind kind = VoKind::kLine;
   /// ANCHOR: the anchor point; LINE: the segment centre, which the store
   /// recomputes as (start + end) / 2. Map frame, m.

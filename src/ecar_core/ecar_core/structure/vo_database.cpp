@@ -15,7 +15,9 @@ namespace {
 
 // The database identifies itself in its meta table: format and schema version.
 constexpr const char* kFormat = "ecar_vo_store";
-constexpr int kSchemaVersion = 1;
+// Version 2 adds objects.map_id (the atlas map); a version-1 file is upgraded
+// in place (its objects were in the one map, id 1).
+constexpr int kSchemaVersion = 2;
 constexpr int kBusyTimeoutMs = 1000;
 
 bool finiteVector(const Eigen::Vector3d& v) { return v.allFinite(); }
@@ -53,7 +55,7 @@ class VoDatabase::Connection {
   uint32_t load(F&& row) {
     sqlite3_stmt* select = prepare(
         "SELECT id, kind, px, py, pz, sx, sy, sz, ex, ey, ez, r, g, b, width, nx, ny, nz, "
-        "plane_id, owner, version, deleted, keyframe_id, last_editor, editor_since "
+        "plane_id, owner, version, deleted, keyframe_id, last_editor, editor_since, map_id "
         "FROM objects ORDER BY id");
     try {
       int rc;
@@ -163,7 +165,16 @@ class VoDatabase::Connection {
       if (format != kFormat) {
         throw Error(path_ + ": not an eCAR VO database (meta format is '" + format + "')");
       }
-      const std::string schema = metaValue("schema_version");
+      std::string schema = metaValue("schema_version");
+      if (schema == "1") {
+        execOrThrow(
+            "BEGIN IMMEDIATE;"
+            "ALTER TABLE objects ADD COLUMN map_id INTEGER NOT NULL DEFAULT 1;"
+            "UPDATE meta SET value = '2' WHERE key = 'schema_version';"
+            "COMMIT",
+            "upgrading the schema from version 1 to 2");
+        schema = metaValue("schema_version");
+      }
       if (schema != std::to_string(kSchemaVersion)) {
         throw Error(path_ + ": VO database schema version '" + schema + "', this build reads " +
                     std::to_string(kSchemaVersion));
@@ -207,8 +218,8 @@ class VoDatabase::Connection {
     upsert_ = prepare(
         "INSERT OR REPLACE INTO objects (id, kind, px, py, pz, sx, sy, sz, ex, ey, ez, r, g, b, "
         "width, nx, ny, nz, plane_id, owner, version, deleted, keyframe_id, last_editor, "
-        "editor_since) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, "
-        "?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25)");
+        "editor_since, map_id) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, "
+        "?14, ?15, ?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26)");
     set_meta_ = prepare("INSERT OR REPLACE INTO meta (key, value) VALUES (?1, ?2)");
   }
 
@@ -225,7 +236,8 @@ class VoDatabase::Connection {
         " nx REAL NOT NULL, ny REAL NOT NULL, nz REAL NOT NULL,"
         " plane_id INTEGER NOT NULL, owner TEXT NOT NULL, version INTEGER NOT NULL,"
         " deleted INTEGER NOT NULL, keyframe_id INTEGER NOT NULL,"
-        " last_editor TEXT NOT NULL, editor_since INTEGER NOT NULL);"
+        " last_editor TEXT NOT NULL, editor_since INTEGER NOT NULL,"
+        " map_id INTEGER NOT NULL DEFAULT 1);"
         "INSERT INTO meta (key, value) VALUES ('format', '" +
             std::string(kFormat) + "'), ('schema_version', '" + std::to_string(kSchemaVersion) +
             "'), ('next_id', '1');"
@@ -259,7 +271,7 @@ class VoDatabase::Connection {
     auto bad = [&](const std::string& why) {
       throw Error(path_ + ": malformed VO database: object " + std::to_string(id) + ": " + why);
     };
-    for (int col = 0; col < 25; ++col) {
+    for (int col = 0; col < 26; ++col) {
       const int type = sqlite3_column_type(s, col);
       const bool text_col = col == 19 || col == 23;
       if (text_col ? type != SQLITE_TEXT : (type != SQLITE_INTEGER && type != SQLITE_FLOAT)) {
@@ -297,6 +309,7 @@ class VoDatabase::Connection {
     e.keyframe = KeyFrameId(static_cast<uint32_t>(integer(22, 0, max_u32)));
     e.last_editor = reinterpret_cast<const char*>(sqlite3_column_text(s, 23));
     e.editor_since = static_cast<uint32_t>(integer(24, 0, max_u32));
+    e.vo.map = MapId(static_cast<uint32_t>(integer(25, 0, max_u32)));
     if (!finiteVector(e.vo.position) || !finiteVector(e.vo.start) || !finiteVector(e.vo.end) ||
         !finiteVector(e.vo.normal) || !std::isfinite(e.vo.width)) {
       bad("a coordinate is not finite");
@@ -339,6 +352,7 @@ class VoDatabase::Connection {
     i64(e.keyframe.value);
     txt(e.last_editor);
     i64(e.editor_since);
+    i64(e.vo.map.value);
     return ok;
   }
 

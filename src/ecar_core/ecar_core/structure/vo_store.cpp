@@ -281,6 +281,7 @@ VoOutcome VoStore::manipulate(ObjectId id, uint32_t base_version, const VirtualO
   if (code != VoReject::kNone) return reject(code, reason, id, current);
   entry.vo.id = id;
   entry.vo.owner = old->vo.owner;
+  entry.vo.map = old->vo.map;
   entry.vo.deleted = false;
   return commitVersion(std::move(entry), *old, editor);
 }
@@ -491,7 +492,7 @@ size_t VoStore::moveKeyFrame(KeyFrameId from, KeyFrameId to) {
 
 std::vector<ObjectId> VoStore::transformObjects(
     const std::function<std::optional<Sim3>(const VirtualObject&)>& correction,
-    const std::string& editor) {
+    const std::string& editor, MapId into) {
   std::lock_guard<std::mutex> write(write_mutex_);
   std::vector<VoRecord> moved;
   {
@@ -507,6 +508,7 @@ std::vector<ObjectId> VoStore::transformObjects(
       vo.end = *S * vo.end;
       vo.normal = (S->R * vo.normal).normalized();
       vo.version = record.vo.version + 1;
+      if (into.valid()) vo.map = into;
       if (editor.empty() || editor != record.last_editor) next.editor_since = record.vo.version;
       next.last_editor = editor;
       if (!vo.position.allFinite() || !vo.start.allFinite() || !vo.end.allFinite()) continue;

@@ -115,10 +115,11 @@ class VoStore {
   /// `editor`, so every device holding it is sent the new position); all rows
   /// are written in one database transaction before memory changes. Throws
   /// ecar::Error naming the database when the write fails (nothing changes
-  /// then). Returns the ids moved.
+  /// then). `into` valid: the moved objects now belong to that map (a merge).
+  /// Returns the ids moved.
   std::vector<ObjectId> transformObjects(
       const std::function<std::optional<Sim3>(const VirtualObject&)>& correction,
-      const std::string& editor);
+      const std::string& editor, MapId into = MapId());
 
   /// Replaces the map bounds (e.g. by the map's extent plus a margin) for the
   /// checks of later changes. Throws ecar::Error when min > max or not finite.

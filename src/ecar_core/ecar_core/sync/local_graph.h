@@ -87,6 +87,7 @@ struct LocalGraph {
   GraphStatus status = GraphStatus::kNotInitialised;
   SE3 T_w_c = SE3::Identity();  ///< server pose of the aligned image (valid when tracked)
   uint32_t map_epoch = 0;       ///< changes when the server's map is replaced
+  MapId map;                    ///< the server map of everything in it (0: not tracked)
   SyncMode mode = SyncMode::kEcar;
   std::vector<GraphPoint> points;         ///< ecar
   std::vector<GraphPosition> positions;   ///< ecar: each of a point in `points`, in their order

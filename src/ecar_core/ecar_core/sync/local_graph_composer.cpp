@@ -39,6 +39,7 @@ void DeviceSyncState::reset() {
   resetMap();
   objects_.clear();
   has_epoch_ = false;
+  map_ = MapId();
 }
 
 void DeviceSyncState::resetMap() {
@@ -67,8 +68,12 @@ std::optional<LocalGraph> LocalGraphComposer::compose(const Map& map, const Comp
   if (!in.frame) throw Error("LocalGraphComposer: no tracked frame");
   if (!state) throw Error("LocalGraphComposer: no device state");
   const TrackResult& frame = *in.frame;
-  if (!state->has_epoch_ || state->epoch_ != in.map_epoch) {
-    state->reset();  // a new device, or a replaced map: the device dropped what it held
+  const MapId map_id = frame.state == TrackingState::kOk ? frame.map : MapId();
+  if (!state->has_epoch_ || state->epoch_ != in.map_epoch ||
+      (map_id.valid() && state->map_.valid() && map_id != state->map_)) {
+    // A new device, a replaced map, or its map merged into another: the
+    // device drops what it held.
+    state->reset();
     state->has_epoch_ = true;
     state->epoch_ = in.map_epoch;
   } else if (in.reset) {
@@ -80,6 +85,8 @@ std::optional<LocalGraph> LocalGraphComposer::compose(const Map& map, const Comp
   out.status = graphStatus(frame);
   out.T_w_c = frame.T_w_c;
   out.map_epoch = in.map_epoch;
+  out.map = map_id;
+  if (map_id.valid()) state->map_ = map_id;
   out.mode = in.mode;
   if (frame.state == TrackingState::kOk) {
     {

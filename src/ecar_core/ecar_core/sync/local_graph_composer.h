@@ -128,6 +128,7 @@ class DeviceSyncState {
   std::map<ObjectId, uint32_t> objects_;
   bool has_epoch_ = false;
   uint32_t epoch_ = 0;
+  MapId map_;  ///< of the last tracked frame
 };
 
 /// The frame a local graph is composed for.

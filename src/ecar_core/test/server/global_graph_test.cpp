@@ -43,30 +43,34 @@ GlobalGraphConfig configWith(const std::string& database, uint32_t first_epoch =
 }
 
 struct Recorder : GraphListener {
-  int slams = 0;
+  int maps = 0;
   std::vector<std::string> added, removed;
-  void onSlamCreated(const std::shared_ptr<SlamSystem>&) override { ++slams; }
+  void onMapCreated(MapId, const std::shared_ptr<SlamSystem>&) override { ++maps; }
   void onDeviceAdded(const DeviceInfo& d) override { added.push_back(d.name); }
   void onDeviceRemoved(const DeviceInfo& d) override { removed.push_back(d.name); }
 };
 
-TEST(GlobalGraphTest, TheFirstDeviceCreatesTheSlamAndEachKeepsItsOwnCamera) {
+TEST(GlobalGraphTest, TheFirstDeviceCreatesTheAtlasAndEachKeepsItsOwnCamera) {
   GlobalGraph graph(configWith(":memory:", 1000));
   Recorder rec;
   graph.addListener(&rec);
-  EXPECT_EQ(graph.slam(), nullptr);
+  EXPECT_EQ(graph.atlas(), nullptr);
   EXPECT_EQ(graph.epoch(), 1000u);
   const auto a = graph.connect("device_0", camera(), "", 0, 0.0);
   ASSERT_TRUE(a.accepted) << a.message;
-  ASSERT_NE(graph.slam(), nullptr);
-  EXPECT_EQ(graph.epoch(), 1000u);  // the SLAM map starts at the server's first epoch
+  ASSERT_NE(graph.atlas(), nullptr);
+  EXPECT_FALSE(graph.hasMap());     // maps come with the first tracked upload
+  EXPECT_EQ(graph.epoch(), 1000u);  // the maps start at the server's first epoch
   EXPECT_EQ(a.device.keyframe_queue, 10u);
   EXPECT_EQ(a.device.mode, SyncMode::kEcar);
-  const std::shared_ptr<SlamSystem> slam = graph.slam();
   const auto b = graph.connect("device_1", camera(600.0), "", 5, 0.0);
   ASSERT_TRUE(b.accepted) << b.message;
   EXPECT_EQ(graph.camera("device_1")->params().fx, 600.0);
+  EXPECT_EQ(graph.atlas()->camera(b.device.id).params().fx, 600.0);
+  // A map made now tracks each device with its camera.
+  const std::shared_ptr<SlamSystem> slam = graph.addMap(camera());
   EXPECT_EQ(slam->camera(b.device.id)->params().fx, 600.0);
+  EXPECT_EQ(slam->map().epoch(), 1000u);
   EXPECT_EQ(graph.camera("device_0")->params().fx, 525.0);
   // A reconnect with another camera takes it.
   const auto c = graph.connect("device_1", camera(525.0, 320), "", 5, 0.0);
@@ -80,7 +84,7 @@ TEST(GlobalGraphTest, TheFirstDeviceCreatesTheSlamAndEachKeepsItsOwnCamera) {
   EXPECT_EQ(d.device.keyframe_queue, 5u);
   EXPECT_NE(d.device.id, a.device.id);
   EXPECT_EQ(graph.devices().name(d.device.id), "device_1");
-  EXPECT_EQ(rec.slams, 1);
+  EXPECT_EQ(rec.maps, 1);
   EXPECT_EQ(rec.added, (std::vector<std::string>{"device_0", "device_1"}));
   graph.removeListener(&rec);
 }
@@ -93,7 +97,7 @@ TEST(GlobalGraphTest, BadNamesAndModesAreRefused) {
   const auto r = graph.connect("device_0", camera(), "full", 0, 0.0);
   EXPECT_FALSE(r.accepted);
   EXPECT_NE(r.message.find("sync_mode"), std::string::npos) << r.message;
-  EXPECT_EQ(graph.slam(), nullptr);  // no SLAM made for a refused device
+  EXPECT_EQ(graph.atlas(), nullptr);  // no SLAM made for a refused device
 }
 
 TEST(GlobalGraphTest, ReconnectKeepsTheIdAndTakesTheNewQueue) {
@@ -137,9 +141,10 @@ TEST(GlobalGraphTest, SilentDevicesAreDroppedAndMayComeBack) {
 TEST(GlobalGraphTest, LateListenersGetTheStateReplayed) {
   GlobalGraph graph(configWith(":memory:"));
   graph.connect("device_0", camera(), "", 0, 0.0);
+  graph.addMap(camera());
   Recorder rec;
   graph.addListener(&rec);
-  EXPECT_EQ(rec.slams, 1);
+  EXPECT_EQ(rec.maps, 1);
   EXPECT_EQ(rec.added, (std::vector<std::string>{"device_0"}));
   graph.removeListener(&rec);
 }
@@ -163,6 +168,7 @@ TEST(GlobalGraphTest, InvalidConfigAndAnUnopenableStoreNameTheProblem) {
 
 VirtualObject lineAt(double x, double y = 0.2) {
   VirtualObject vo;
+  vo.map = MapId(1);  // the first map of the atlas
   vo.start = Eigen::Vector3d(x, y, 0.0);
   vo.end = Eigen::Vector3d(x + 0.3, y, 0.0);
   vo.width = 0.05f;
@@ -179,7 +185,8 @@ VoRequest registration(const VirtualObject& vo, const std::string& device = "dev
 // Planes of keyframe 1 (a floor seen from x = 0) merged into the graph, as
 // plane segmentation would, and what it reports.
 KeyFramePlanes addFloor(GlobalGraph* graph, KeyFrameId id, const SE3& T_w_c) {
-  const PlaneKeyFrameInput input = floorKeyFrame(id, T_w_c);
+  PlaneKeyFrameInput input = floorKeyFrame(id, T_w_c);
+  input.map = MapId(1);  // the first map of the atlas
   KeyFramePlanes out;
   out.keyframe = id;
   out.T_w_c = T_w_c;
@@ -191,7 +198,7 @@ KeyFramePlanes addFloor(GlobalGraph* graph, KeyFrameId id, const SE3& T_w_c) {
 
 // A server with a floor plane, its keyframe's cells and two objects (one moved).
 void fill(GlobalGraph* graph) {
-  graph->slamFor(camera640());
+  graph->addMap(camera640());
   GridConnection grid(graph, GridConnectionConfig());
   const KeyFramePlanes k = addFloor(graph, KeyFrameId(1), lookingAlongX(0.0));
   ASSERT_EQ(k.update.created.size(), 1u);
@@ -217,14 +224,15 @@ TEST(GlobalGraphTest, AFreshServerResumesTheSavedMap) {
   EXPECT_GT(saved.bytes, 0u);
 
   GlobalGraph second(configWith(dir.file("second.sqlite"), 5000));
-  ASSERT_FALSE(second.slam());
+  ASSERT_FALSE(second.atlas());
   const uint32_t epoch = second.epoch();
   const uint64_t generation = second.generation();
   const MapCounts loaded = second.load(dir.file("map.ecarmap"));
   EXPECT_EQ(loaded.planes, 1u);
   EXPECT_EQ(loaded.objects, 2u);
-  ASSERT_TRUE(second.slam());  // created with the file's camera
-  EXPECT_EQ(second.slam()->camera().params().fx, 525.0);
+  ASSERT_TRUE(second.atlas());  // created with the file's camera
+  EXPECT_EQ(loaded.maps, 1u);
+  EXPECT_EQ(second.atlas()->camera(DeviceId()).params().fx, 525.0);
   EXPECT_NE(second.epoch(), epoch);
   EXPECT_EQ(second.generation(), generation + 1);
 
@@ -253,6 +261,7 @@ TEST(GlobalGraphTest, AFreshServerResumesTheSavedMap) {
   frame.state = TrackingState::kOk;
   frame.T_w_c = lookingAlongX(0.0);
   frame.map_epoch = second.epoch();
+  frame.map = MapId(1);
   const VisibleStructure now = grid.visible(frame, "device_0");
   EXPECT_FALSE(now.stale);
   EXPECT_EQ(now.planes.size(), 1u);
@@ -309,10 +318,10 @@ TEST(GlobalGraphTest, BadFilesAndPathsFailNamingThePathAndChangeNothing) {
   CameraParams other = camera640().params();
   other.fx = 400.0;
   GlobalGraph foreign(configWith(dir.file("b.sqlite"), 100));
-  foreign.slamFor(PinholeCamera(other));
+  foreign.addMap(PinholeCamera(other));
   EXPECT_EQ(foreign.load(good).objects, 2u);
   EXPECT_EQ(foreign.vos().numObjects(), 2u);
-  EXPECT_EQ(foreign.slam()->camera().params().fx, 400.0);
+  EXPECT_EQ(foreign.atlas()->camera(DeviceId()).params().fx, 400.0);
 }
 
 // A loop correction moved keyframe 1 by 10 cm up, 0.5 m sideways and 2
@@ -329,7 +338,7 @@ TEST(GlobalGraphTest, AMapCorrectionMovesPlanesObjectsAndCells) {
   VirtualObject before;
   {
     GlobalGraph graph(config);
-    const std::shared_ptr<SlamSystem> slam = graph.slamFor(camera640());
+    const std::shared_ptr<SlamSystem> slam = graph.addMap(camera640());
     {
       auto lock = slam->map().writeLock();
       KeyFrame kf;
@@ -356,9 +365,9 @@ TEST(GlobalGraphTest, AMapCorrectionMovesPlanesObjectsAndCells) {
     // A correction of another epoch (a map loaded since) changes nothing.
     MapCorrection stale = correction;
     stale.epoch += 1;
-    EXPECT_EQ(graph.applyMapCorrection(stale).objects, 0u);
+    EXPECT_EQ(graph.applyMapCorrection(MapId(1), stale).objects, 0u);
 
-    const MapCorrectionReport report = graph.applyMapCorrection(correction);
+    const MapCorrectionReport report = graph.applyMapCorrection(MapId(1), correction);
     EXPECT_EQ(report.keyframes, 1u);
     EXPECT_EQ(report.planes, 1u);
     EXPECT_EQ(report.objects, 1u);
@@ -391,7 +400,7 @@ TEST(GlobalGraphTest, CulledKeyFramesLoseTheirLinksAndHandTheirObjectsOn) {
   GlobalGraphConfig config = configWith(":memory:");
   config.vo.attach_mode = VoAttachMode::kKeyFrame;
   GlobalGraph graph(config);
-  graph.slamFor(camera640());
+  graph.addMap(camera640());
   GridConnection grid(&graph, GridConnectionConfig());
   const KeyFramePlanes k = addFloor(&graph, KeyFrameId(1), lookingAlongX(0.0));
   ASSERT_GT(grid.linkKeyFrame(k), 0u);
@@ -408,7 +417,7 @@ TEST(GlobalGraphTest, VoBoundsFollowTheKeyFrames) {
   GlobalGraph graph(config);
   graph.updateVoBounds();  // no map yet: nothing changes
   ASSERT_TRUE(graph.vos().registerObject(lineAt(50.0)).accepted);
-  const std::shared_ptr<SlamSystem> slam = graph.slamFor(camera640());
+  const std::shared_ptr<SlamSystem> slam = graph.addMap(camera640());
   {
     Map& map = slam->map();
     auto lock = map.writeLock();

@@ -18,6 +18,7 @@ using testing::lookingAlongX;
 
 VirtualObject lineAt(double x, double y) {
   VirtualObject vo;
+  vo.map = MapId(1);  // the first map of the atlas
   vo.start = Eigen::Vector3d(x, y, 0.0);
   vo.end = Eigen::Vector3d(x + 0.3, y, 0.0);
   vo.width = 0.05f;
@@ -36,7 +37,7 @@ bool holds(const VisibleStructure& v, ObjectId id) {
 class GridConnectionTest : public ::testing::Test {
  protected:
   explicit GridConnectionTest(VoAttachMode mode = VoAttachMode::kGrid) : graph(configOf(mode)) {
-    graph.slamFor(camera640());
+    graph.addMap(camera640());
   }
 
   static GlobalGraphConfig configOf(VoAttachMode mode) {
@@ -47,7 +48,8 @@ class GridConnectionTest : public ::testing::Test {
   }
 
   KeyFramePlanes segmentFloor(GridConnection* grid, KeyFrameId id, const SE3& T_w_c) {
-    const PlaneKeyFrameInput input = floorKeyFrame(id, T_w_c);
+    PlaneKeyFrameInput input = floorKeyFrame(id, T_w_c);
+    input.map = MapId(1);
     KeyFramePlanes k;
     k.keyframe = id;
     k.T_w_c = T_w_c;
@@ -64,6 +66,7 @@ class GridConnectionTest : public ::testing::Test {
     r.T_w_c = T_w_c;
     r.local_keyframes = std::move(local);
     r.map_epoch = graph.epoch();
+    r.map = MapId(1);
     return r;
   }
 
@@ -170,7 +173,7 @@ TEST_F(GridConnectionKeyFrameTest, KeyFrameModeFollowsTheLocalKeyFrames) {
   EXPECT_FALSE(no.reason.empty());
   // With one, it hangs on the nearest.
   {
-    Map& map = graph.slam()->map();
+    Map& map = graph.map(MapId(1))->map();
     auto lock = map.writeLock();
     for (double x : {0.0, 6.0}) {
       KeyFrame kf;

@@ -23,7 +23,7 @@ using testing::lookingAlongX;
 class PlaneSegmentationTest : public ::testing::Test {
  protected:
   PlaneSegmentationTest() : graph(configOf()) {
-    Map& map = graph.slamFor(camera640())->map();
+    Map& map = graph.addMap(camera640())->map();
     auto lock = map.writeLock();
     std::vector<Eigen::Vector3d> floor;
     std::mt19937 rng(5);
@@ -91,7 +91,7 @@ TEST_F(PlaneSegmentationTest, TheFloorOfAKeyFrameBecomesALabelledPlane) {
 }
 
 TEST_F(PlaneSegmentationTest, MapQueriesCopyWhatTheModulesNeed) {
-  const Map& map = graph.slam()->map();
+  const Map& map = graph.map(MapId(1))->map();
   const std::optional<KeyFrameNeighbourhood> n = keyframeNeighbourhood(map, kf2, 10);
   ASSERT_TRUE(n);
   EXPECT_EQ(n->points.size(), num_points);  // its own half and kf1's (its neighbour)

@@ -158,6 +158,8 @@ class Device {
   /// Drops pending frames older than ~reconnect_timeout (their graph is lost).
   void prunePending(const ros::Time& now);
   void changeEpoch(uint32_t epoch, const char* why);
+  /// Drops the keyframes, points, objects and pose held (epoch or map change).
+  void dropLocalMap();
   /// Draws the held VOs and pending strokes into ar_image_ from T_w_c (bgr8).
   void drawObjects(const ecar::SE3& T_w_c);
   /// Draws the status line (device, frame, tracking, counts) on top of ar_image_.
@@ -178,6 +180,7 @@ class Device {
   bool connected_ = false;
   bool has_epoch_ = false;
   uint32_t epoch_ = 0;
+  uint32_t map_id_ = 0;            ///< the server map of the last graph (0: none yet)
   bool reset_next_ = true;         ///< the next upload asks for every position again
   uint32_t last_reset_frame_ = 0;  ///< frame of the last upload with reset
   uint32_t last_graph_frame_ = 0;

@@ -65,6 +65,16 @@ struct ServerConfig {
   bool loop_closing = true;
   int loop_min_inliers = 40;   ///< similarity inliers a loop needs
   bool loop_global_ba = true;  ///< a global bundle adjustment after each loop
+  /// Atlas: several maps (a device that matches no map starts its own at
+  /// once), merged when they overlap; false: every device joins the first map.
+  bool several_maps = true;
+  /// Atlas: a device lost for this many uploads starts a new map (0: never).
+  int new_map_after_lost = 8;
+  /// Atlas: merge maps that overlap (place recognition on every new keyframe,
+  /// and a relocalisation probe into the other maps every merge_probe_every
+  /// tracked uploads of a device; 0: no probes).
+  bool merge_maps = true;
+  int merge_probe_every = 2;
   /// Devices' cameras within this fraction (fx, fy, cx, cy; distortion
   /// coefficients absolutely) count as one camera. Any camera may connect.
   double camera_tolerance = 0.005;

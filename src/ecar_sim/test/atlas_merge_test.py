@@ -1,0 +1,213 @@
+#!/usr/bin/python3
+# (The system interpreter, not `env python3`: a python3 from pyenv or a venv
+# first on PATH has no rospy.)
+"""End to end (started by test/atlas_merge.test): two maps, merged, and a VO across the merge.
+
+Renders atlas_scene.yaml: `walker` and `walker_b` start at the same time on opposite sides of the
+small ring; `walker` draws a line on the wall at the east end of the south corridor (frames
+100-110), long before `walker_b` comes round to the south corridor. Plays both through the real
+server and devices and asserts that
+- each device is tracked within 10 uploads of starting, in a map of its own (the LocalGraphs'
+  map_id differ), neither waiting for the other;
+- the maps merge: later graphs of both devices carry one map id;
+- one similarity fits both devices' poses in the merged map to the ground truth within 10 cm
+  (a wrong merge leaves metres);
+- `walker_b` receives the line after the merge (in a graph of the merged map) and draws it where
+  it was drawn in the world (x = 9, y 0.9-1.5, z = 1.2) within 15 cm: the object's map position
+  seen from walker_b's server pose of the frame that brought it, put in the world through that
+  frame's ground-truth pose (what the user of walker_b sees). Reported beside it: where walker
+  itself drew it (the early map's wall is 8-10 cm off already) and how far the two agree.
+
+Private params: ~scene, ~player_launch, ~frames.
+"""
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import unittest
+
+import numpy as np
+import rospy
+import rostest
+from ecar_msgs.msg import InteractionResult, LocalGraph
+from ecar_sim import ground_truth
+from ecar_sim.alignment import Similarity, quat_to_rot, umeyama
+from std_msgs.msg import Bool
+
+PKG = "ecar_sim"
+DEVICES = ["walker", "walker_b"]
+EVERY = 4  # uploads: every 4th frame
+
+
+class AtlasMergeTest(unittest.TestCase):
+    def setUp(self):
+        self.scene = rospy.get_param("~scene")
+        self.player_launch = rospy.get_param("~player_launch")
+        self.frames = int(rospy.get_param("~frames", 430))
+        self.tmp = tempfile.mkdtemp(prefix="ecar_atlas_merge_")
+        self.lock = threading.Lock()
+        # Per device: frame_index -> (map_id, position) of tracked graphs, and
+        # (frame_index, map_id, object) of every object received.
+        self.poses = {d: {} for d in DEVICES}
+        self.full_poses = {d: {} for d in DEVICES}
+        self.objects = {d: [] for d in DEVICES}
+        self.results = []
+        self.finished = {d: False for d in DEVICES}
+        self.last_activity = time.time()
+        self.players = []
+
+    def tearDown(self):
+        for p in self.players:
+            if p.poll() is None:
+                p.terminate()
+                p.wait()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def on_graph(self, m, device):
+        with self.lock:
+            if m.status in (LocalGraph.OK, LocalGraph.RELOCALISED):
+                p, q = m.pose.position, m.pose.orientation
+                T = np.eye(4)
+                T[:3, :3] = quat_to_rot([q.x, q.y, q.z, q.w])
+                T[:3, 3] = [p.x, p.y, p.z]
+                self.poses[device][m.frame_index] = (m.map_id, np.array([p.x, p.y, p.z]))
+                self.full_poses[device][m.frame_index] = T
+                for o in m.objects:
+                    self.objects[device].append((m.frame_index, m.map_id, o))
+            self.last_activity = time.time()
+
+    def on_result(self, m):
+        with self.lock:
+            self.results.append(m)
+
+    def on_finished(self, m, device):
+        with self.lock:
+            self.finished[device] = self.finished[device] or m.data
+
+    def render(self, device):
+        out = os.path.join(self.tmp, device)
+        subprocess.run(["rosrun", "ecar_sim", "make_dataset", "--scene", self.scene, "--device",
+                        device, "--frames", str(self.frames), "--out", out, "--quiet"],
+                       check=True, stdout=subprocess.DEVNULL)
+        return out
+
+    def test_two_maps_merge_and_a_vo_crosses(self):
+        datasets = {d: self.render(d) for d in DEVICES}
+        self.assertTrue(os.path.exists(os.path.join(datasets["walker"], "touches.txt")),
+                        "walker's dataset has no touches.txt")
+        rospy.Subscriber("/walker/interaction_result", InteractionResult, self.on_result,
+                         queue_size=1000)
+        for d in DEVICES:
+            rospy.Subscriber("/%s/local_graph" % d, LocalGraph, self.on_graph, callback_args=d,
+                             queue_size=500)
+            rospy.Subscriber("/%s/player/finished" % d, Bool, self.on_finished, callback_args=d)
+        rospy.wait_for_service("/ecar/connect", 60.0)
+        for d in DEVICES:
+            self.players.append(subprocess.Popen(
+                ["roslaunch", self.player_launch, "dataset:=" + datasets[d], "device:=" + d,
+                 "pace_by_consumer:=true", "ack_timeout:=5.0", "output:=log"],
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        deadline = time.time() + 400.0
+        while time.time() < deadline and not rospy.is_shutdown():
+            with self.lock:
+                if all(self.finished.values()) and time.time() - self.last_activity > 3.0:
+                    break
+            time.sleep(0.5)
+        with self.lock:
+            self.assertTrue(all(self.finished.values()), "players did not finish: %s" %
+                            self.finished)
+
+        # Each device tracked early, each in its own map (the scene's start pause is 15 frames).
+        first = {}
+        for d in DEVICES:
+            frames = sorted(self.poses[d])
+            self.assertTrue(frames, "%s was never tracked" % d)
+            first[d] = frames[0]
+            self.assertLessEqual(frames[0], 15 + 10 * EVERY,
+                                 "%s first tracked at frame %d" % (d, frames[0]))
+        start_maps = {d: self.poses[d][first[d]][0] for d in DEVICES}
+        self.assertNotEqual(start_maps["walker"], start_maps["walker_b"],
+                            "both devices started in map %s" % start_maps)
+        self.assertNotIn(0, start_maps.values())
+
+        # The maps merged: the last graphs of both are in one map.
+        last = {d: self.poses[d][max(self.poses[d])][0] for d in DEVICES}
+        self.assertEqual(last["walker"], last["walker_b"], "maps at the end: %s" % last)
+        merged = last["walker"]
+        merged_at = min(f for f, (m, _) in self.poses["walker_b"].items() if m == merged
+                        and start_maps["walker_b"] != merged) \
+            if start_maps["walker_b"] != merged else \
+            min(f for f, (m, _) in self.poses["walker"].items() if m == merged)
+        rospy.loginfo("maps at the start %s, merged into map %d (first graph in it at frame %d)",
+                      start_maps, merged, merged_at)
+
+        # One similarity fits both devices' poses in the merged map to the ground truth.
+        src, dst = [], []
+        for d in DEVICES:
+            gt = ground_truth.read_groundtruth(datasets[d])
+            for f, (m, p) in self.poses[d].items():
+                if m == merged:
+                    src.append(p)
+                    dst.append(gt[f][:3, 3])
+        sim = Similarity(*umeyama(src, dst))
+        err = np.array([np.linalg.norm(sim.apply(s) - t) for s, t in zip(src, dst)])
+        rmse = float(np.sqrt((err ** 2).mean()))
+        rospy.loginfo("merged map: %d poses, one-similarity RMSE %.3f m", len(src), rmse)
+        # A wrong merge leaves metres. A right one leaves 4-6 cm today (three runs: 3.7, 3.9, 6.3
+        # cm; the merge's similarity comes from one view's matches and the global adjustment
+        # after it is dropped when tracking changed the map meanwhile); issue 12's target is 3 cm,
+        # measured by the benchmark, not here.
+        self.assertLess(rmse, 0.10, "one similarity fits the merged map within %.3f m" % rmse)
+
+        # walker drew the line (accepted), before the merge.
+        accepted = [r for r in self.results if r.accepted]
+        self.assertGreaterEqual(len(accepted), 1, "walker's touches: %s" %
+                                [(r.request_id, r.reason) for r in self.results])
+        # walker_b received it after the merge, in the merged map, where it was drawn.
+        received = [(f, o) for f, m, o in self.objects["walker_b"] if m == merged and
+                    start_maps["walker_b"] != merged]
+        if start_maps["walker_b"] == merged:  # walker's map went into walker_b's
+            received = [(f, o) for f, m, o in self.objects["walker_b"]]
+        self.assertTrue(received, "walker_b received no object after the merge")
+        # Where each device's user sees an object: its map position through the device's
+        # server pose of the frame that brought it, put in the world by that frame's
+        # ground-truth pose.
+        def drawn_at(device, f, v):
+            gt = ground_truth.read_groundtruth(datasets[device]) if device not in gts else gts[device]
+            gts[device] = gt
+            return (gt[f] @ np.linalg.inv(self.full_poses[device][f]) @
+                    np.array([v.x, v.y, v.z, 1.0]))[:3]
+        gts = {}
+        own = {}  # object id -> [x, z] where walker (who drew it) drew it, last seen
+        for f, m, o in self.objects["walker"]:
+            if m == start_maps["walker"]:
+                own[o.id] = [drawn_at("walker", f, v) for v in (o.start, o.end)]
+        worst_drawn, worst_fit, worst_agree = 0.0, 0.0, 0.0
+        for f, o in received:
+            for k, v in enumerate((o.start, o.end)):
+                drawn = drawn_at("walker_b", f, v)
+                fitted = sim.apply((v.x, v.y, v.z))
+                err = max(abs(drawn[0] - 9.0), abs(drawn[2] - 1.2))
+                worst_drawn = max(worst_drawn, err)
+                worst_fit = max(worst_fit, abs(fitted[0] - 9.0), abs(fitted[2] - 1.2))
+                if o.id in own:
+                    worst_agree = max(worst_agree, float(np.linalg.norm(drawn - own[o.id][k])))
+                self.assertLess(err, 0.15, "frame %d: object %d drawn at %s" % (f, o.id, drawn))
+                self.assertTrue(0.8 < drawn[1] < 1.6, "frame %d: object %d drawn at %s" %
+                                (f, o.id, drawn))
+        worst_own = max([max(abs(p[0] - 9.0), abs(p[2] - 1.2)) for ps in own.values()
+                         for p in ps] or [0.0])
+        rospy.loginfo("walker_b received %d objects on %d graphs after the merge; it draws them "
+                      "within %.3f m of the touch (%.3f m through the one similarity), walker "
+                      "within %.3f m; the two agree within %.3f m",
+                      len({o.id for _, o in received}), len({f for f, _ in received}),
+                      worst_drawn, worst_fit, worst_own, worst_agree)
+
+
+if __name__ == "__main__":
+    rospy.init_node("atlas_merge_test")
+    rostest.rosrun(PKG, "atlas_merge", AtlasMergeTest, sys.argv)
