@@ -434,6 +434,9 @@ TEST(PlaneMapTest, ReadersCopyWhileAWriterIntegrates) {
     }
   };
   std::thread r1(reader), r2(reader);
+  // The readers run before the writer starts (on a loaded machine the writer
+  // could otherwise finish before either was scheduled, and nothing overlaps).
+  while (reads.load() < 2) std::this_thread::yield();
   for (size_t k = 0; k < inputs.size(); ++k) map.integrate(inputs[k], observations[k]);
   done = true;
   r1.join();
