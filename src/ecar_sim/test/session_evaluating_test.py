@@ -15,6 +15,7 @@ import unittest
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 from ecar_msgs.msg import DeviceFrame  # noqa: E402
 from ecar_sim.session import evaluating as ev  # noqa: E402
+from ecar_sim.session import maps  # noqa: E402
 from ecar_sim.session import report  # noqa: E402
 from ecar_sim.session.collecting import FrameRecord  # noqa: E402
 
@@ -113,6 +114,37 @@ class DeviceSummaryTest(unittest.TestCase):
         self.assertIsNone(s["server_ate_se3_m"])
         self.assertIsNone(s["device_vs_server_rmse_m"])
         self.assertEqual(s["device_vs_server_frames"], 0)
+
+
+class FinalMapTest(unittest.TestCase):
+    """A device whose map merged into another: its poses before the merge (another map's
+    coordinates) are left out of the pose metrics."""
+
+    def test_poses_before_the_merge_are_left_out(self):
+        r = records()
+        # Graphs of frames 2-3 in map 2; the merge: frames 4-5 in map 1, which device_1 ends in.
+        r.server_maps = {"device_0": {2: 2, 3: 2, 4: 1, 5: 1}, "device_1": {0: 1}}
+        # Before the merge the device's own poses are in map 2 too, 5 m away.
+        for f in (2, 3, 4):
+            e = r.device_frames["device_0"][f]
+            r.device_frames["device_0"][f] = e._replace(position=(f + 5.0, 0.0, 0.0))
+        final = maps.final_map(r, ["device_0", "device_1"])
+        self.assertEqual(final, 1)
+        with tempfile.TemporaryDirectory() as tmp:
+            write_dataset(os.path.join(tmp, "d"), 8)
+            s = ev.device_summary("device_0", os.path.join(tmp, "d"), r, tmp, {},
+                                  ate_rmse=lambda gt, est, env, sim3: 0.0, final=final)
+        self.assertEqual((s["maps"], s["final_map"], s["final_map_from_frame"]), ([1, 2], 1, 4))
+        self.assertEqual(s["server_poses_other_maps"], 2)
+        # Frame 4's own pose was tracked before its graph named map 1: only frame 5 compares.
+        self.assertEqual(s["device_vs_server_frames"], 1)
+        self.assertAlmostEqual(s["device_vs_server_rmse_m"], 0.03)
+
+    def test_records_without_map_ids_are_one_map(self):
+        r = records()
+        self.assertIsNone(maps.final_map(r, ["device_0"]))
+        in_final = maps.frames_of(r, "device_0", None)
+        self.assertTrue(in_final.server(3) and in_final.device(3))
 
 
 class OverallTest(unittest.TestCase):

@@ -61,6 +61,7 @@ class RecordsTest(unittest.TestCase):
             self.r.on_local_graph(local_graph("device_0", frame, status, 0.1 * frame), "device_0")
         self.assertEqual(self.r.graphs, {"device_0": 4, "device_1": 0})
         self.assertEqual(sorted(self.r.server_poses["device_0"]), [4, 12])
+        self.assertEqual(self.r.server_maps["device_0"], {4: 0, 12: 0})  # and their map ids
         p, q = self.r.server_poses["device_0"][12]
         self.assertAlmostEqual(p[0], 1.2)
         self.assertEqual(q, (0.0, 0.0, 0.0, 1.0))
@@ -129,6 +130,7 @@ class RawTest(unittest.TestCase):
                          (e.status, e.position, e.orientation, e.wall, e.held))
         self.assertEqual((b.uploaded, b.tracking_time), (False, 0.0))  # not kept
         self.assertEqual(back.server_poses, r.server_poses)
+        self.assertEqual(back.server_maps, r.server_maps)
         self.assertEqual(back.graph_walls, r.graph_walls)
         (wall, o), = back.objects
         self.assertEqual(wall, r.objects[0][0])

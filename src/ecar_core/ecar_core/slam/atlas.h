@@ -177,17 +177,20 @@ class Atlas {
   /// Looks for the keyframe's place in the other maps; merges on a match.
   void tryMerge(MapId map, KeyFrameId keyframe, DeviceId device);
   /// tryMerge's search, the session lock held exclusively; returns the merged
-  /// map (null when none).
+  /// map (null when none) and the keyframes it moved.
   std::shared_ptr<SlamSystem> findMerge(MapId map, KeyFrameId keyframe, DeviceId device,
-                                        std::chrono::steady_clock::time_point start);
+                                        std::chrono::steady_clock::time_point start,
+                                        std::vector<KeyFrameId>* moved);
   /// Merges the smaller of the candidate's maps into the larger. The session
-  /// lock held exclusively.
-  /// Returns the merged map, whose global bundle adjustment the caller runs
-  /// once the session lock is released (null when nothing merged).
+  /// lock held exclusively. Returns the merged map (null when nothing merged)
+  /// and the keyframes moved into it, for adjustMerged().
   std::shared_ptr<SlamSystem> doMerge(const MergeCandidate& c,
-                                      std::chrono::steady_clock::time_point start);
-  /// Runs after a merge, without the session lock.
-  void adjustMerged(const std::shared_ptr<SlamSystem>& merged) const;
+                                      std::chrono::steady_clock::time_point start,
+                                      std::vector<KeyFrameId>* moved);
+  /// After a merge, without the session lock: indexes the moved keyframes in
+  /// the merged map, then bundle-adjusts it whole.
+  void adjustMerged(const std::shared_ptr<SlamSystem>& merged,
+                    const std::vector<KeyFrameId>& moved) const;
 
   PinholeCamera camera_;
   SlamConfig config_;

@@ -120,13 +120,24 @@ void SlamSystem::installMap(std::unique_ptr<Map> map) {
 }
 
 void SlamSystem::reindex() {
+  index_.clear();
+  keypoint_index_.clear();
+  std::vector<KeyFrameId> ids;
+  {
+    auto lock = map_.readLock();
+    ids = map_.keyframeIds();
+  }
+  indexKeyFrames(ids);
+}
+
+void SlamSystem::indexKeyFrames(const std::vector<KeyFrameId>& ids) {
   std::vector<std::pair<KeyFrameId, cv::Mat>> descriptors;
   std::vector<std::vector<int>> point_rows;
   {
     auto lock = map_.readLock();
-    for (const KeyFrameId id : map_.keyframeIds()) {
+    for (const KeyFrameId id : ids) {
       const KeyFrame* kf = map_.keyframe(id);
-      if (kf->features.descriptors.empty()) continue;
+      if (!kf || kf->features.descriptors.empty()) continue;
       std::vector<int> rows;
       for (size_t i = 0; i < kf->points.size(); ++i) {
         if (map_.point(kf->points[i])) rows.push_back(static_cast<int>(i));
@@ -135,8 +146,6 @@ void SlamSystem::reindex() {
       point_rows.push_back(std::move(rows));
     }
   }
-  index_.clear();
-  keypoint_index_.clear();
   for (size_t k = 0; k < descriptors.size(); ++k) {
     index_.add(descriptors[k].first, descriptors[k].second);
     keypoint_index_.add(descriptors[k].first, descriptors[k].second, point_rows[k]);

@@ -91,9 +91,12 @@ class SlamSystem {
   /// every tracker so that it relocalises against the new map. Not from the
   /// mapped callback (it may run inside track()).
   void installMap(std::unique_ptr<Map> map);
-  /// Rebuilds the place and keypoint indexes from the map (after keyframes
-  /// were moved in from another map). Not while keyframes are being added.
+  /// Rebuilds the place and keypoint indexes from the map (after a map was
+  /// installed). Not while keyframes are being added.
   void reindex();
+  /// Adds keyframes of the map to the place and keypoint indexes (moved in
+  /// from another map); safe while tracking and mapping go on.
+  void indexKeyFrames(const std::vector<KeyFrameId>& ids);
 
   Map& map() { return map_; }
   const Map& map() const { return map_; }

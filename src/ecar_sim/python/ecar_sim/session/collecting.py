@@ -62,6 +62,7 @@ class Records:
     device_frames  {device: {frame index: FrameRecord}}
     server_poses   {device: {frame index: (position, orientation)}} of the local graphs
                    with a server pose (LocalGraph.OK or RELOCALISED)
+    server_maps    {device: {frame index: LocalGraph.map_id}} of the same graphs
     graphs         {device: local graphs received}
     graph_walls    {device: [wall time of each local graph]}
     objects        [(wall, VirtualObject)] every accepted change
@@ -76,6 +77,7 @@ class Records:
         self.metrics = []
         self.device_frames = {d: {} for d in devices}
         self.server_poses = {d: {} for d in devices}
+        self.server_maps = {d: {} for d in devices}
         self.graphs = {d: 0 for d in devices}
         self.graph_walls = {d: [] for d in devices}
         self.objects = []
@@ -121,6 +123,7 @@ class Records:
             self.graph_walls[device].append(time.time())
             if graph.status in SERVER_POSE_STATUSES:
                 self.server_poses[device][graph.frame_index] = pose_tuples(graph.pose)
+                self.server_maps[device][graph.frame_index] = graph.map_id
             self.last_activity = time.time()
 
     def on_plane(self, plane):

@@ -21,6 +21,7 @@ import subprocess
 
 from ecar_msgs.msg import DeviceFrame
 
+from ecar_sim.session import maps
 from ecar_sim.session.datasets import read_frame_times
 
 METRICS_FIELDS = ["device", "frame", "bytes_up", "bytes_down", "points", "positions",
@@ -74,17 +75,21 @@ def rotation_angle_deg(q1, q2):
     return math.degrees(2.0 * math.acos(min(1.0, dot)))
 
 
-def device_summary(device, dataset, records, traj_dir, env, ate_rmse=ate):
+def device_summary(device, dataset, records, traj_dir, env, ate_rmse=ate, final=None):
     """summary.json's per_device entry of one device; writes its trajectories (device and
     server estimates, ground truth copied) into traj_dir. ate_rmse(gt, est, env, sim3) gives
-    the ATE (ecar_eval_traj by default)."""
+    the ATE (ecar_eval_traj by default). The pose metrics use the device's frames in the
+    session's final map `final` (session.maps; all frames for records without map ids)."""
     frames = records.device_frames.get(device, {})
-    server = records.server_poses[device]
+    in_final = maps.frames_of(records, device, final)
+    all_server = records.server_poses[device]
+    server = {f: p for f, p in all_server.items() if in_final.server(f)}
     times = read_frame_times(dataset)
     uploads = sum(1 for e in frames.values() if e.uploaded)
     started = [f for f, e in frames.items() if e.status != DeviceFrame.NOT_INITIALISED]
     tracked = [f for f, e in frames.items() if e.status == DeviceFrame.OK]
-    device_poses = {f: (frames[f].position, frames[f].orientation) for f in tracked}
+    device_poses = {f: (frames[f].position, frames[f].orientation) for f in tracked
+                    if in_final.device(f)}
     common = sorted(set(device_poses) & set(server))
     errors = [math.dist(device_poses[f][0], server[f][0]) for f in common]
     rot = [rotation_angle_deg(device_poses[f][1], server[f][1]) for f in common]
@@ -119,6 +124,7 @@ def device_summary(device, dataset, records, traj_dir, env, ate_rmse=ate):
         "server_ate_se3_m": traj_ate(srv_file, server, False),
         "server_ate_sim3_m": traj_ate(srv_file, server, True),
         "median_latency_ms": rnd(percentile([r["latency_ms"] for r in rows], 50), 2),
+        **in_final.summary(all_server),
     }
 
 

@@ -43,6 +43,11 @@ def print_summary(s, out):
                                                                   " cm", 100.0, 2),
              r["device_vs_server_frames"], fmt(r["device_ate_se3_m"], " cm", 100.0, 2),
              fmt(r["server_ate_se3_m"], " cm", 100.0, 2)))
+        if len(r.get("maps", [])) > 1:
+            log("%s: server maps %s; measured in the final map %s from frame %s (%d server poses "
+                "in other maps left out)" % (d, r["maps"], r["final_map"],
+                                            r["final_map_from_frame"],
+                                            r["server_poses_other_maps"]))
     log("local graph %s B median (p95 %s B), %s B per tracked point; latency %s ms median (p95 %s);"
         " server %s ms median" % (fmt(o["local_graph_bytes_median"], "", 1, 0),
                                    fmt(o["local_graph_bytes_p95"], "", 1, 0),

@@ -14,7 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import rospy
 
-from ecar_sim.session import evaluating, launching, options, structure
+from ecar_sim.session import evaluating, launching, maps, options, structure
 from ecar_sim.session.collecting import Collector
 from ecar_sim.session.datasets import dataset_frames, ensure_dataset, read_fps, scene_devices
 from ecar_sim.session.report import log, print_summary, progress_line
@@ -169,7 +169,9 @@ def run(args):
 
     traj_dir = os.path.join(out, "traj")
     os.makedirs(traj_dir, exist_ok=True)
-    per_device = {d: evaluating.device_summary(d, datasets[d], collector, traj_dir, env)
+    final = maps.final_map(collector, devices)
+    per_device = {d: evaluating.device_summary(d, datasets[d], collector, traj_dir, env,
+                                               final=final)
                   for d in devices}
     overall = evaluating.overall_summary(devices, collector)
     structure.save_raw(os.path.join(out, "vo_raw.json.gz"), collector)

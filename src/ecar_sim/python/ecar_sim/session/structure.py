@@ -18,6 +18,7 @@ from ecar_sim import ground_truth as truth
 from ecar_sim import plane_metrics
 from ecar_sim import vo_metrics as vm
 from ecar_sim.alignment import robust_similarity
+from ecar_sim.session import maps
 from ecar_sim.session.collecting import FrameRecord
 from ecar_sim.session.evaluating import rnd
 from ecar_sim.session.report import log
@@ -25,13 +26,15 @@ from ecar_sim.session.report import log
 
 def fit_map_to_world(devices, datasets, records):
     """(Similarity T_world_map, a description of the fit) from the server's camera positions
-    and the ground truth. Poses of a device not yet merged into the shared map (another map's
-    frame) are dropped as outliers by a second fit. Raises ValueError without poses."""
+    and the ground truth, in the session's final map (session.maps). Poses far off the fit are
+    dropped as outliers by a second fit. Raises ValueError without poses."""
     src, dst = [], []
+    final = maps.final_map(records, devices)
     for d in devices:
         gt = truth.read_groundtruth(datasets[d])
+        in_final = maps.frames_of(records, d, final)
         for f, (p, _) in records.server_poses[d].items():
-            if f in gt:
+            if f in gt and in_final.server(f):
                 src.append(p)
                 dst.append(gt[f][:3, 3])
     sim, keep, residual = robust_similarity(np.array(src), np.array(dst))
@@ -52,11 +55,15 @@ def evaluate_vos(args, devices, datasets, records, map_to_world):
         return None
     scene = _read_scene(args.scene)
     device_records = []
+    final = maps.final_map(records, devices)
     for d in devices:
         with open(os.path.join(datasets[d], "camera.yaml")) as f:
             camera = truth.Camera.from_yaml(yaml.safe_load(f))
+        # Frames in the final map only: before its map merged a device sees another map's
+        # objects (not those of the final map) in another map's coordinates.
+        in_final = maps.frames_of(records, d, final)
         frames = {f: (e.wall, e.status, e.position, e.orientation, e.held)
-                  for f, e in records.device_frames.get(d, {}).items()}
+                  for f, e in records.device_frames.get(d, {}).items() if in_final.device(f)}
         device_records.append(vm.DeviceRecord(d, camera, frames,
                                               truth.read_groundtruth(datasets[d]),
                                               records.graph_walls[d]))
@@ -104,6 +111,8 @@ def save_raw(path, records):
                           for d, fr in records.device_frames.items()},
         "server_poses": {d: {str(f): [p, q] for f, (p, q) in sp.items()}
                          for d, sp in records.server_poses.items()},
+        "server_maps": {d: {str(f): m for f, m in sm.items()}
+                        for d, sm in records.server_maps.items()},
         "graph_walls": records.graph_walls,
         "objects": [[w, {"id": m.id, "version": m.version, "deleted": m.deleted, "owner": m.owner,
                          "kind": m.kind, "position": point(m.position), "start": point(m.start),
@@ -129,6 +138,9 @@ class RawCollector:
             for d, fr in raw["device_frames"].items()}
         self.server_poses = {d: {int(f): (tuple(p), tuple(q)) for f, (p, q) in sp.items()}
                              for d, sp in raw["server_poses"].items()}
+        # Sessions recorded before the atlas have no map ids: one map.
+        self.server_maps = {d: {int(f): m for f, m in sm.items()}
+                            for d, sm in raw.get("server_maps", {}).items()}
         self.graph_walls = raw["graph_walls"]
 
         def pt(v):
