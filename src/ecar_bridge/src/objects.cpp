@@ -73,6 +73,7 @@ ecar_msgs::VirtualObject toMsg(const ecar::VirtualObject& vo) {
   m.owner = vo.owner;
   m.version = vo.version;
   m.deleted = vo.deleted;
+  m.map_id = vo.map.value;
   return m;
 }
 
@@ -98,6 +99,7 @@ ecar::VirtualObject fromMsg(const ecar_msgs::VirtualObject& m, const std::string
   vo.plane = ecar::PlaneId(m.plane_id);
   vo.owner = m.owner;
   vo.version = m.version;
+  vo.map = ecar::MapId(m.map_id);
   vo.deleted = m.deleted;
   return vo;
 }

@@ -31,6 +31,7 @@ void expectObjectEq(const ecar::VirtualObject& a, const ecar::VirtualObject& b) 
   EXPECT_EQ(a.owner, b.owner);
   EXPECT_EQ(a.version, b.version);
   EXPECT_EQ(a.deleted, b.deleted);
+  EXPECT_EQ(a.map, b.map);
 }
 
 TEST(PlaneMsgTest, RoundTripAndBadFields) {
@@ -88,6 +89,7 @@ TEST(VirtualObjectTest, RoundTripAndBadFields) {
   EXPECT_EQ(m.owner, "device_1");
   EXPECT_EQ(m.version, 9u);
   EXPECT_TRUE(m.deleted);
+  EXPECT_EQ(m.map_id, 3u);
   expectObjectEq(fromMsg(m), vo);
   ecar_msgs::VirtualObject bad = m;
   bad.start.y = std::numeric_limits<double>::quiet_NaN();

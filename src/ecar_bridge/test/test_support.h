@@ -40,6 +40,7 @@ inline ecar::VirtualObject someObject() {
   vo.owner = "device_1";
   vo.version = 9;
   vo.deleted = true;
+  vo.map = ecar::MapId(3);
   return vo;
 }
 

@@ -47,6 +47,9 @@ void Device::onTouch(const ecar_msgs::TouchConstPtr& msg) {
   header.frame_id = config_.map_frame;
   for (ecar::VoRequest& r : requests_) {
     r.device = config_.device_id;
+    // The coordinates are those of the server map this device holds: a
+    // request that arrives after that map merged is refused, not misplaced.
+    r.object.map = ecar::MapId(map_id_);
     interaction_pub_.publish(ecar_bridge::toMsg(r, header));
   }
 }

@@ -74,14 +74,27 @@ VoOutcome GridConnection::apply(const VoRequest& r) {
   auto structure = graph_->structureLock();
   VoStore& store = graph_->vos();
   VoOutcome outcome;
+  // The map the request's coordinates are in: the one the device held when
+  // the user acted (the device's current map when not given; rviz: the
+  // largest map).
+  const std::optional<DeviceInfo> device = graph_->devices().device(r.device);
+  const MapId current = device ? graph_->mapOf(device->id) : graph_->largestMap();
+  const MapId map = r.object.map.valid() ? r.object.map : current;
+  if (r.type != VoRequestType::kDelete && current.valid() && map != current) {
+    outcome.code = VoReject::kStaleMap;
+    outcome.id = r.object_id;
+    outcome.reason = "drawn in map " + std::to_string(map.value) + ", but " + r.device +
+                     " is now in map " + std::to_string(current.value) +
+                     " (its map merged): draw again";
+    if (const std::optional<VirtualObject> vo = store.get(r.object_id))
+      outcome.version = vo->version;
+    return outcome;
+  }
   switch (r.type) {
     case VoRequestType::kRegister: {
       VirtualObject vo = r.object;
       vo.owner = r.device;
-      // In the map the device tracks in (rviz: the largest map).
-      const std::optional<DeviceInfo> device = graph_->devices().device(r.device);
-      vo.map = device ? graph_->mapOf(device->id) : MapId();
-      if (!vo.map.valid()) vo.map = graph_->largestMap();
+      vo.map = map.valid() ? map : graph_->largestMap();
       KeyFrameId keyframe;
       const std::shared_ptr<SlamSystem> slam = graph_->map(vo.map);
       if (store.attachMode() == VoAttachMode::kKeyFrame && slam) {

@@ -105,6 +105,7 @@ enum class VoReject {
   kNoKeyFrame,    ///< keyframe mode: a registration without a keyframe
   kFull,          ///< max_objects reached
   kStorage,       ///< the database write failed
+  kStaleMap,      ///< made in a map that merged into another since (other coordinates)
 };
 
 /// The answer to one change (ecar_msgs/InteractionResult).

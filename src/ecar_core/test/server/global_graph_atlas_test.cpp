@@ -172,6 +172,36 @@ TEST(GlobalGraphAtlas, MapsKeepTheirStructureApartAndAMergeMovesIt) {
   EXPECT_LT((stored->start - S * before.start).norm(), 1e-9);
 }
 
+// A registration names the map its coordinates are in; one made in a map that
+// is not the requester's current map (it merged since) is refused, not put in
+// the wrong coordinates. rviz (not a device) draws in the largest map.
+TEST(GlobalGraphAtlas, ARequestFromAMergedMapIsRefused) {
+  GlobalGraph graph(configWith(":memory:"));
+  MapId one, two;
+  const std::shared_ptr<SlamSystem> slam1 = graph.addMap(camera640(), &one);
+  const std::shared_ptr<SlamSystem> slam2 = graph.addMap(camera640(), &two);
+  addKeyFrame(slam1.get(), lookingAlongX(0.0));
+  for (double x : {0.0, 1.0}) addKeyFrame(slam2.get(), lookingAlongX(x));
+  ASSERT_EQ(graph.largestMap(), two);
+  GridConnection grid(&graph, GridConnectionConfig());
+  VoRequest r;
+  r.device = "rviz";
+  r.object = lineIn(one, 2.0);
+  const VoOutcome stale = grid.apply(r);
+  EXPECT_FALSE(stale.accepted);
+  EXPECT_EQ(stale.code, VoReject::kStaleMap);
+  EXPECT_NE(stale.reason.find("map 1"), std::string::npos) << stale.reason;
+  EXPECT_EQ(graph.vos().numObjects(), 0u);
+  r.object.map = two;
+  const VoOutcome ok = grid.apply(r);
+  ASSERT_TRUE(ok.accepted) << ok.reason;
+  EXPECT_EQ(graph.vos().get(ok.id)->map, two);
+  r.object.map = MapId();  // not given: the requester's current map
+  const VoOutcome current = grid.apply(r);
+  ASSERT_TRUE(current.accepted) << current.reason;
+  EXPECT_EQ(graph.vos().get(current.id)->map, two);
+}
+
 // Every map goes into the file with its id; the larger map is the "slam"
 // section (what a one-map reader reads); an object of a map the file lacks is
 // kept and listed.
