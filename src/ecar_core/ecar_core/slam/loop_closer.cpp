@@ -103,8 +103,10 @@ bool LoopCloser::detect(KeyFrameId kf, Candidate* out, LoopClosure* report) {
   const LoopClosingConfig& c = config_.loops;
   cv::Mat descriptors;
   std::unordered_set<KeyFrameId> excluded;
+  bool metric = false;
   {
     auto lock = map_->readLock();
+    metric = map_->metric();
     const KeyFrame* k = map_->keyframe(kf);
     if (!k || k->features.descriptors.empty()) return false;
     if (map_->numKeyFrames() < static_cast<size_t>(c.min_keyframe_gap)) return false;
@@ -123,7 +125,8 @@ bool LoopCloser::detect(KeyFrameId kf, Candidate* out, LoopClosure* report) {
     }
     ++tried;
     const std::optional<PlaceMatch> m =
-        verifyPlace(*map_, kf, *map_, pc.keyframe, excluded, c, false, kf.value);
+        // A metric map (odometry) keeps its scale: SE(3), as a merge of metric maps.
+        verifyPlace(*map_, kf, *map_, pc.keyframe, excluded, c, metric, kf.value);
     if (!m) continue;
     Candidate cand;
     cand.duplicates = m->duplicates;
