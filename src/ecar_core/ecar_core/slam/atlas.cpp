@@ -485,6 +485,12 @@ std::shared_ptr<SlamSystem> Atlas::doMerge(const MergeCandidate& c,
     auto lock_from = from->map().writeLock();
     r = mergeMaps(&into->map(), &from->map(), S, duplicates);
   }
+  // The seam welded: the points around each side fused into the keyframes
+  // around the other (the matches of one view gave only a few dozen), so the
+  // bundle adjustments after the merge hold the two sides together.
+  if (c.query.valid() && c.match.valid()) {
+    r.points_fused += static_cast<size_t>(into->mapper().weld(c.query, c.match, 10));
+  }
   // The seam is mapped again: new points across it, fusion, local BA.
   if (c.query.valid()) into->mapper().insert(c.query);
   if (c.match.valid()) into->mapper().insert(c.match);

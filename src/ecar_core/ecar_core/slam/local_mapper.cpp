@@ -239,6 +239,36 @@ int LocalMapper::fuseDuplicates(KeyFrameId kf) {
   return fused;
 }
 
+int LocalMapper::weld(KeyFrameId a, KeyFrameId b, size_t window) {
+  auto lock = map_->writeLock();
+  const auto around = [&](KeyFrameId k) {
+    std::vector<KeyFrameId> w;
+    if (!map_->keyframe(k)) return w;
+    w.push_back(k);
+    for (const KeyFrameId n : map_->bestCovisible(k, window)) w.push_back(n);
+    return w;
+  };
+  const auto pointsOf = [&](const std::vector<KeyFrameId>& w) {
+    std::vector<MapPointId> points;
+    std::unordered_set<MapPointId> seen;
+    for (const KeyFrameId k : w) {
+      for (const MapPointId id : map_->keyframe(k)->points) {
+        if (map_->point(id) && seen.insert(id).second) points.push_back(id);
+      }
+    }
+    return points;
+  };
+  const std::vector<KeyFrameId> wa = around(a), wb = around(b);
+  int fused = 0;
+  const std::vector<MapPointId> from_a = pointsOf(wa);
+  for (const KeyFrameId k : wb) fused += fuseInto(k, from_a);
+  const std::vector<MapPointId> from_b = pointsOf(wb);
+  for (const KeyFrameId k : wa) fused += fuseInto(k, from_b);
+  for (const KeyFrameId k : wa) map_->updateCovisibility(k);
+  for (const KeyFrameId k : wb) map_->updateCovisibility(k);
+  return fused;
+}
+
 int LocalMapper::fuseInto(KeyFrameId target, const std::vector<MapPointId>& points) {
   KeyFrame* n = map_->mutableKeyFrame(target);
   if (!n) return 0;

@@ -51,6 +51,11 @@ class LocalMapper {
   /// running if it was. Call while no tracker can insert keyframes.
   void reset();
   bool idle() const;
+  /// Welds a seam (two maps merged, or the two ends of a loop): the points of
+  /// `a` and its `window` best covisible keyframes are fused into the
+  /// keyframes around `b`, and the other way round, where they project onto a
+  /// matching keypoint. Returns how many were fused. Takes the write lock.
+  int weld(KeyFrameId a, KeyFrameId b, size_t window);
   /// Times of the local bundle adjustments so far (ms).
   std::vector<double> baTimes() const;
   /// Called (on the mapping thread, or inside processPending()) after each

@@ -255,7 +255,12 @@ void Map::updateCovisibility(KeyFrameId kid) {
   bool has_strong = false;
   for (const auto& c : counts) has_strong |= c.second >= 15;
   for (const auto& kv : counts) {
-    if (kv.second < 15 && has_strong) continue;
+    if (kv.second < 15 && has_strong) {
+      // Dropped on both sides: a link kept only by the other keyframe would
+      // dangle once this one is erased (eraseKeyFrame follows this one's).
+      if (KeyFrame* other = mutableKeyFrame(kv.first)) other->covisibility.erase(kid);
+      continue;
+    }
     kf->covisibility[kv.first] = kv.second;
     if (KeyFrame* other = mutableKeyFrame(kv.first)) other->covisibility[kid] = kv.second;
   }
