@@ -161,6 +161,15 @@ void Map::eraseKeyFrame(KeyFrameId kid) {
   if (!kf) return;
   const std::vector<MapPointId> observed = kf->points;
   for (const auto& pid : observed) {
+    // A keyframe sharing points may keep a weak link that this one dropped
+    // (updateCovisibility keeps weak links on one side): it goes too.
+    if (const MapPoint* p = point(pid)) {
+      for (const auto& obs : p->observations) {
+        if (KeyFrame* other = mutableKeyFrame(obs.first)) other->covisibility.erase(kid);
+      }
+    }
+  }
+  for (const auto& pid : observed) {
     if (pid.valid()) eraseObservation(pid, kid);
   }
   for (const auto& kv : kf->covisibility) {
@@ -255,12 +264,7 @@ void Map::updateCovisibility(KeyFrameId kid) {
   bool has_strong = false;
   for (const auto& c : counts) has_strong |= c.second >= 15;
   for (const auto& kv : counts) {
-    if (kv.second < 15 && has_strong) {
-      // Dropped on both sides: a link kept only by the other keyframe would
-      // dangle once this one is erased (eraseKeyFrame follows this one's).
-      if (KeyFrame* other = mutableKeyFrame(kv.first)) other->covisibility.erase(kid);
-      continue;
-    }
+    if (kv.second < 15 && has_strong) continue;
     kf->covisibility[kv.first] = kv.second;
     if (KeyFrame* other = mutableKeyFrame(kv.first)) other->covisibility[kid] = kv.second;
   }
