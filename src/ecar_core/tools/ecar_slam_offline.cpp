@@ -48,6 +48,7 @@
 #include "ecar_core/io/trajectory.h"
 #include "ecar_core/slam/atlas.h"
 #include "ecar_core/slam/slam_system.h"
+#include "offline_atlas_events.h"
 #include "offline_runs.h"
 
 namespace {
@@ -56,6 +57,20 @@ using ecar::percentile;
 using offline::DeviceRun;
 using offline::deviceTrajectoryPath;
 using offline::firstOverlapUploads;
+
+nlohmann::json gapsJson(const DeviceRun& r) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const offline::Gap& g :
+       offline::trackingGaps(r.upload_tracked, r.upload_blank, r.upload_initialised)) {
+    out.push_back({{"lost_upload", g.lost_upload},
+                   {"blank_uploads", g.blank_uploads},
+                   {"textured_upload", g.textured_upload},
+                   {"tracked_upload", g.tracked_upload},
+                   {"delay_uploads", g.delay()},
+                   {"new_map", g.new_map}});
+  }
+  return out;
+}
 
 struct Args {
   std::vector<std::string> datasets;
@@ -206,6 +221,8 @@ int run(const Args& args) {
   }
   // Which upload of which device found each merge and each loop.
   std::vector<std::pair<size_t, int>> merge_found_by, loop_found_by;
+  std::vector<size_t> merge_steps;
+  std::vector<offline::Step> steps;
   bool metric = args.use_odometry;
   for (const auto& r : runs) {
     if (r.dataset.size() == 0 || !r.dataset.frame(0).T_o_c_odom) metric = false;
@@ -253,8 +270,10 @@ int run(const Args& args) {
     const ecar::TrackResult res =
         atlas.track(ecar::DeviceId(static_cast<uint32_t>(d + 1)), image, f.timestamp,
                     static_cast<uint32_t>(index), f.gravity_c, odom, &map_id);
-    for (size_t m = merges_before; m < atlas.merges().size(); ++m)
+    for (size_t m = merges_before; m < atlas.merges().size(); ++m) {
       merge_found_by.emplace_back(d, upload);
+      merge_steps.push_back(step);
+    }
     for (size_t l = loops_before; l < atlas.loopClosures().size(); ++l)
       loop_found_by.emplace_back(d, upload);
     if (args.verbose) {
@@ -264,7 +283,15 @@ int run(const Args& args) {
     }
     orb_ms.push_back(res.orb_ms);
     track_ms.push_back(res.track_ms);
-    if (res.initialised) r.init_upload = upload;
+    const bool ok = res.state == ecar::TrackingState::kOk;
+    steps.push_back({d, upload, ok, ok ? map_id : ecar::MapId()});
+    r.upload_tracked.push_back(ok);
+    r.upload_blank.push_back(offline::blankImage(image));
+    r.upload_initialised.push_back(res.initialised);
+    if (res.initialised) {
+      ++r.maps_started;
+      if (r.init_upload < 0) r.init_upload = upload;
+    }
     if (res.relocalised) {
       if (r.joined_upload < 0 && r.init_upload < 0) r.joined_upload = upload;
       ++r.relocalisations;
@@ -276,6 +303,7 @@ int run(const Args& args) {
       if (f.T_w_c_gt) {
         r.estimate.push_back({f.timestamp, res.T_w_c});
         r.estimate_map.push_back(map_id);
+        r.estimate_step.push_back(step);
         r.truth.push_back({f.timestamp, *f.T_w_c_gt});
       }
     }
@@ -309,6 +337,7 @@ int run(const Args& args) {
   size_t outside_main = 0;
   for (DeviceRun& r : runs) {
     ecar::Trajectory estimate, truth;
+    std::vector<size_t> estimate_step;
     for (size_t i = 0; i < r.estimate.size(); ++i) {
       const auto [final_map, S] = atlas.finalFrameOf(r.estimate_map[i]);
       if (final_map != main_map) {
@@ -319,9 +348,11 @@ int run(const Args& args) {
       p.T_w_c = S.transformPose(p.T_w_c);
       estimate.push_back(p);
       truth.push_back(r.truth[i]);
+      estimate_step.push_back(r.estimate_step[i]);
     }
     r.estimate = std::move(estimate);
     r.truth = std::move(truth);
+    r.estimate_step = std::move(estimate_step);
   }
   if (outside_main > 0) {
     std::printf("%zu tracked uploads are in maps never merged into the first device's (left out)\n",
@@ -349,7 +380,7 @@ int run(const Args& args) {
       std::cerr << "ecar_slam_offline: no ATE: " << e.what() << "\n";
     }
   }
-  if (have_ate) firstOverlapUploads(slam, S, &runs);
+  if (have_ate) firstOverlapUploads(slam, S, &runs, atlas_config.id_range);
   std::printf("map: %zu keyframes, %zu map points (%.1f s wall)\n", slam.map().numKeyFrames(),
               slam.map().numPoints(), wall_s);
   std::vector<double> all_errors, all_tilt;
@@ -410,7 +441,21 @@ int run(const Args& args) {
                                     ? r.joined_upload - r.first_overlap_upload
                                     : -1},
          {"relocalisations", r.relocalisations},
+         {"maps_started", r.maps_started},
+         {"gaps", gapsJson(r)},
          {"ate", ecar::toJson(st)}});
+    for (const offline::Gap& g :
+         offline::trackingGaps(r.upload_tracked, r.upload_blank, r.upload_initialised)) {
+      if (g.tracked_upload >= 0 && g.tracked_upload - g.lost_upload < 3) continue;
+      std::printf("  %s lost at upload %d (%d blank uploads): %s\n", r.name.c_str(), g.lost_upload,
+                  g.blank_uploads,
+                  g.tracked_upload < 0
+                      ? "never tracked again"
+                      : ("tracked again at upload " + std::to_string(g.tracked_upload) + ", " +
+                         std::to_string(g.delay()) + " after the first textured one" +
+                         (g.new_map ? ", in a new map" : ""))
+                            .c_str());
+    }
     if (!args.out.empty()) {
       ecar::writeTum(deviceTrajectoryPath(args.out, d, runs.size()), r.all_estimates,
                      "ecar_slam_offline estimate (T_w_c per tracked upload)");
@@ -503,6 +548,10 @@ int run(const Args& args) {
   summary["maps"] = atlas.mapIds().size();
   summary["merges"] = nlohmann::json::array();
   const std::vector<ecar::MergeEvent> merges = atlas.merges();
+  const std::vector<offline::MergeOverlap> overlaps =
+      have_ate
+          ? offline::mergeOverlaps(slam, S, runs, steps, merges, merge_steps, atlas_config.id_range)
+          : std::vector<offline::MergeOverlap>();
   for (size_t k = 0; k < merges.size(); ++k) {
     const ecar::MergeEvent& m = merges[k];
     const size_t d = k < merge_found_by.size() ? merge_found_by[k].first : m.device.value - 1;
@@ -512,13 +561,37 @@ int run(const Args& args) {
         "inliers, scale %.4f; %zu keyframes moved, %zu points fused, %.1f ms\n",
         d < runs.size() ? runs[d].name.c_str() : "?", upload, m.query.value, m.from.value,
         m.into.value, m.match.value, m.inliers, m.scale, m.keyframes_moved, m.points_fused, m.ms);
-    summary["merges"].push_back({{"upload", upload},
-                                 {"device", d < runs.size() ? runs[d].name : "?"},
-                                 {"inliers", m.inliers},
-                                 {"ms", m.ms},
-                                 {"into", m.into.value},
-                                 {"from", m.from.value},
-                                 {"scale", m.scale}});
+    nlohmann::json entry = {
+        {"upload", upload},     {"device", d < runs.size() ? runs[d].name : "?"},
+        {"inliers", m.inliers}, {"ms", m.ms},
+        {"into", m.into.value}, {"from", m.from.value},
+        {"scale", m.scale},     {"overlap_device", nullptr},
+        {"overlap_upload", -1}, {"delay_uploads", -1}};
+    if (k < overlaps.size() && overlaps[k].step >= 0) {
+      const offline::Step& o = steps[static_cast<size_t>(overlaps[k].step)];
+      entry["overlap_device"] = runs[o.device].name;
+      entry["overlap_upload"] = o.upload;
+      entry["delay_uploads"] = overlaps[k].delay;
+      std::printf(
+          "  first overlap (30 deg, 20%% of the distance): %s upload %d; merged %d "
+          "uploads of %s %s\n",
+          runs[o.device].name.c_str(), o.upload, std::abs(overlaps[k].delay),
+          d < runs.size() ? runs[d].name.c_str() : "?",
+          overlaps[k].delay < 0 ? "before it" : "later");
+    } else if (k < overlaps.size()) {
+      std::printf("  first overlap: none measured\n");
+    }
+    summary["merges"].push_back(entry);
+  }
+  if (!merge_steps.empty()) {
+    const ecar::ErrorStats after = offline::ateAfterStep(runs, merge_steps.back(), !metric);
+    const ecar::ErrorStats after_sim3 = offline::ateAfterStep(runs, merge_steps.back(), true);
+    std::printf(
+        "ATE after the last merge (one transform, %zu uploads): %s rmse %.4f m, Sim(3) rmse "
+        "%.4f m\n",
+        after.n, metric ? "SE(3)" : "Sim(3)", after.rmse, after_sim3.rmse);
+    summary["ate_after_merges"] = ecar::toJson(after);
+    summary["ate_after_merges_sim3"] = ecar::toJson(after_sim3);
   }
   std::printf("maps at the end: %zu\n", atlas.mapIds().size());
   summary["loop_closures"] = nlohmann::json::array();

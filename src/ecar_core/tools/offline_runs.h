@@ -34,8 +34,11 @@ struct DeviceRun {
   double overlap_range_m = 0.0;           ///< the distance limit of first_overlap_upload
   ecar::Trajectory estimate, truth;       // tracked uploads with ground truth
   std::vector<ecar::MapId> estimate_map;  // the map each estimate is in
+  std::vector<size_t> estimate_step;      // the atlas step of each estimate
   ecar::Trajectory all_estimates;
   int first_tracked_upload = -1;
+  int maps_started = 0;  // maps this device initialised
+  std::vector<bool> upload_tracked, upload_blank, upload_initialised;
 };
 
 inline std::string deviceTrajectoryPath(const std::string& out, size_t device, size_t count) {
@@ -46,37 +49,58 @@ inline std::string deviceTrajectoryPath(const std::string& out, size_t device, s
   return stem + "_device" + std::to_string(device) + ext;
 }
 
+// A map point (in the ground-truth frame, through S) with the keyframes that
+// observed it: their device, time since the device's first frame, centre (the
+// ground truth's) and the atlas map each was made in (from its id range).
+struct ObservedPoint {
+  struct View {
+    size_t device;
+    double time;
+    Eigen::Vector3d centre;
+    ecar::MapId origin;
+  };
+  Eigen::Vector3d p;
+  std::vector<View> views;
+};
+
+// Every point of the map with ground truth views; `distances` receives every
+// observation's distance (for the range the SLAM maps at).
+inline std::vector<ObservedPoint> observedPoints(const ecar::SlamSystem& slam, const ecar::Sim3& S,
+                                                 const std::vector<DeviceRun>& runs,
+                                                 uint32_t id_range,
+                                                 std::vector<double>* distances) {
+  std::vector<ObservedPoint> points;
+  auto lock = slam.map().readLock();
+  for (const auto& pid : slam.map().pointIds()) {
+    const ecar::MapPoint* p = slam.map().point(pid);
+    if (!p) continue;
+    ObservedPoint o;
+    o.p = S * p->p_w;
+    for (const auto& obs : p->observations) {
+      const ecar::KeyFrame* kf = slam.map().keyframe(obs.first);
+      if (!kf) continue;
+      distances->push_back(S.scale * (p->p_w - kf->center()).norm());
+      const size_t d = kf->device.value - 1;
+      if (kf->device.value < 1 || d >= runs.size()) continue;
+      const DeviceRun& r = runs[d];
+      if (kf->frame_index >= r.dataset.size()) continue;
+      const auto& f = r.dataset.frame(kf->frame_index);
+      if (!f.T_w_c_gt) continue;
+      o.views.push_back({d, f.timestamp - r.dataset.frame(0).timestamp, f.T_w_c_gt->translation(),
+                         ecar::MapId((kf->id.value - 1) / id_range + 1)});
+    }
+    if (!o.views.empty()) points.push_back(std::move(o));
+  }
+  return points;
+}
+
 // Sets first_overlap_upload of every device that did not start the map (see
 // the file comment).
 inline void firstOverlapUploads(const ecar::SlamSystem& slam, const ecar::Sim3& S,
-                                std::vector<DeviceRun>* runs) {
-  struct Observed {
-    Eigen::Vector3d p;                                               // ground-truth frame
-    std::vector<std::tuple<size_t, double, Eigen::Vector3d>> views;  // device, time, centre
-  };
-  std::vector<Observed> points;
+                                std::vector<DeviceRun>* runs, uint32_t id_range) {
   std::vector<double> observation_distances;
-  {
-    auto lock = slam.map().readLock();
-    for (const auto& pid : slam.map().pointIds()) {
-      const ecar::MapPoint* p = slam.map().point(pid);
-      if (!p) continue;
-      Observed o;
-      o.p = S * p->p_w;
-      for (const auto& obs : p->observations) {
-        const ecar::KeyFrame* kf = slam.map().keyframe(obs.first);
-        if (kf) observation_distances.push_back(S.scale * (p->p_w - kf->center()).norm());
-        if (!kf || kf->device.value < 1 || kf->device.value > runs->size()) continue;
-        const DeviceRun& r = (*runs)[kf->device.value - 1];
-        if (kf->frame_index >= r.dataset.size()) continue;
-        const auto& f = r.dataset.frame(kf->frame_index);
-        if (!f.T_w_c_gt) continue;
-        o.views.emplace_back(kf->device.value - 1, f.timestamp - r.dataset.frame(0).timestamp,
-                             f.T_w_c_gt->translation());
-      }
-      if (!o.views.empty()) points.push_back(std::move(o));
-    }
-  }
+  const std::vector<ObservedPoint> points =
+      observedPoints(slam, S, *runs, id_range, &observation_distances);
   // The range the SLAM itself maps at: 90% of the map's observations are closer.
   const double range = ecar::percentile(observation_distances, 0.9);
   for (size_t d = 0; d < runs->size(); ++d) {
@@ -98,9 +122,9 @@ inline void firstOverlapUploads(const ecar::SlamSystem& slam, const ecar::Sim3& 
         if (!uv || !camera.inImage(*uv)) continue;
         const double dist = (o.p - c).norm();
         if (dist > range) continue;
-        for (const auto& [device, time, centre] : o.views) {
-          if (device == d || time > t) continue;
-          if (std::abs((o.p - centre).norm() / dist - 1.0) <= 0.2) {
+        for (const ObservedPoint::View& v : o.views) {
+          if (v.device == d || v.time > t) continue;
+          if (std::abs((o.p - v.centre).norm() / dist - 1.0) <= 0.2) {
             ++shared;
             break;
           }

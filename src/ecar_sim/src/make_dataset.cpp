@@ -220,6 +220,7 @@ int run(const Options& o) {
     const ecar::MotionSample& m = motion[i];
     const double t = m.timestamp;
     ropt.noise_seed = static_cast<uint32_t>(i);
+    ropt.blank = m.blank;
     renderer.render(m.T_w_c, ropt, &out);
     writer.addImu(ecar::ImuSample{t, m.gravity_c, m.gyro_c});
     writer.addFrame(t, out.image, m.T_w_c, m.gravity_c, m.T_o_c);

@@ -202,6 +202,8 @@ std::vector<MotionSample> generateMotion(const Scene& scene, const DeviceSpec& d
     MotionSample& m = samples[i];
     m.timestamp = t;
     m.T_w_c = pose_at(t);
+    m.blank = spec.blank_duration > 0 && t >= spec.blank_start &&
+              t < spec.blank_start + spec.blank_duration;
     if (!scene.isFree(m.T_w_c.translation(), 0.05)) {
       throw Error(scene.path + ": device '" + device.name + "' leaves the free space at t=" +
                   std::to_string(t) + " s (position " + std::to_string(m.T_w_c.translation().x()) +

@@ -22,6 +22,9 @@ struct MotionSample {
   /// Device odometry T_o_c: gravity-aligned, starts at the first pose, drifts
   /// in position and yaw as OdometryNoise describes.
   SE3 T_o_c = SE3::Identity();
+  /// The camera sees a blank surface (TrajectorySpec::blank_start): render it
+  /// with RenderOptions::blank.
+  bool blank = false;
 };
 
 constexpr double kGravity = 9.81;

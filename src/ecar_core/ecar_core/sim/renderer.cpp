@@ -346,11 +346,29 @@ void Renderer::render(const SE3& T_w_c, const RenderOptions& options, RenderOutp
     if (options.labels) out->labels.setTo(0);
     return;
   }
+  const float sigma = options.noise_sigma;
+  if (options.blank) {
+    constexpr float kBlankGrey = 140.0f;
+    const int channels = out->image.channels();
+    for (int v = 0; v < H; ++v) {
+      uint8_t* img = out->image.ptr<uint8_t>(v);
+      for (int u = 0; u < W; ++u) {
+        const float n = sigma > 0.0f
+                            ? sigma * pixelNoise(static_cast<uint32_t>(u), static_cast<uint32_t>(v),
+                                                 options.noise_seed)
+                            : 0.0f;
+        const uint8_t g = static_cast<uint8_t>(std::clamp(kBlankGrey + n + 0.5f, 0.0f, 255.0f));
+        for (int k = 0; k < channels; ++k) img[channels * u + k] = g;
+      }
+    }
+    if (options.depth) out->depth.setTo(0);
+    if (options.labels) out->labels.setTo(0);
+    return;
+  }
   const bool fast = spaces_f_.size() == 1;
   thread_local RowScratch row;
   row.resize(W);
   const float aniso = options.anisotropy_power;
-  const float sigma = options.noise_sigma;
 
   for (int v = 0; v < H; ++v) {
     if (fast) {

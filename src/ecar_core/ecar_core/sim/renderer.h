@@ -32,6 +32,9 @@ struct RenderOptions {
   /// Mip level selection: footprint = isotropic footprint * (1/cos)^power.
   /// 1 never aliases at grazing angles; smaller keeps floors sharper.
   float anisotropy_power = 0.8f;
+  /// A blank view (a covered lens, a bare wall filling the image): uniform
+  /// grey plus the noise; depth 0 and labels kNone, as for nothing seen.
+  bool blank = false;
 };
 
 struct RenderOutput {

@@ -151,7 +151,7 @@ TrajectorySpec readTrajectory(const Reader& r) {
   const auto type = r.get<std::string>("type");
   const std::set<std::string> common = {"type",          "height",         "jitter_deg",
                                         "bob_amplitude", "sway_amplitude", "step_frequency",
-                                        "start_pause",   "speed"};
+                                        "start_pause",   "speed",          "blank"};
   auto with = [&](std::set<std::string> extra) {
     extra.insert(common.begin(), common.end());
     return extra;
@@ -164,6 +164,14 @@ TrajectorySpec readTrajectory(const Reader& r) {
   t.start_pause = r.getFinite("start_pause", t.start_pause);
   t.speed = r.getPositive("speed", t.speed);
   if (t.start_pause < 0) r.fail("key 'start_pause' must not be negative");
+  if (r.has("blank")) {
+    const auto b = r.get<std::vector<double>>("blank");
+    if (b.size() != 2 || !std::isfinite(b[0]) || !std::isfinite(b[1]) || b[0] < 0 || b[1] <= 0) {
+      r.fail("key 'blank' must be [start_s, duration_s] with start >= 0 and duration > 0");
+    }
+    t.blank_start = b[0];
+    t.blank_duration = b[1];
+  }
   if (type == "walk") {
     r.allowOnly(with({"waypoints", "pitch_deg"}));
     t.type = TrajectoryType::kWalk;

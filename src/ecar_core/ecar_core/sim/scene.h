@@ -67,6 +67,11 @@ struct TrajectorySpec {
   double shake_amplitude_deg = 4.0;  ///< shake: rotation amplitude, degrees
   double shake_frequency = 1.2;      ///< shake: dominant frequency, Hz
   double start_pause = 0.0;          ///< seconds standing still (with hand jitter) before moving
+  /// The camera sees only a blank surface (covered, or facing a bare wall)
+  /// from `blank_start` for `blank_duration` seconds while the motion goes on
+  /// (key `blank: [start_s, duration_s]`); no blank when blank_duration is 0.
+  double blank_start = 0.0;
+  double blank_duration = 0.0;
 };
 
 /// Odometry as a phone's VIO would report it: drifting in position and yaw,

@@ -317,6 +317,9 @@ TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp
           settle(fresh_id, r);
         } else if (!current) {
           result = r;
+        } else if (!r.message.empty()) {
+          // Lost in its map: say how its new map is doing as well.
+          result.message += "; new map " + std::to_string(fresh_id.value) + ": " + r.message;
         }
       }
     }

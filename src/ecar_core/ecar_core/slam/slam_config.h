@@ -52,6 +52,10 @@ struct SlamConfig {
   int init_attempts = 5;       ///< two-view reconstructions tried per image
   /// A candidate view is skipped when 90% of the keypoints moved less (px).
   double init_min_displacement_px = 3.0;
+  /// With gravity in both views: two-view motions whose rotation moves the up
+  /// direction by more than this (degrees) are ruled out (TwoViewGravity).
+  /// Generous: a walking phone's accelerometer reads several degrees off.
+  double init_gravity_tolerance_deg = 20.0;
   int min_inliers = 30;  ///< tracking OK needs this many inliers
   /// Below this fraction of the last image's inliers, the motion-model result
   /// is checked against tracking from the reference keyframe.

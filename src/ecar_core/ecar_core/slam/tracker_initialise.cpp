@@ -114,7 +114,14 @@ bool Tracker::initialise(TrackResult* result) {
       p2.push_back(current_.undistorted[a.m12[i]]);
       candidate_pairs.emplace_back(static_cast<int>(i), a.m12[i]);
     }
-    TwoViewResult tv = reconstructTwoView(p1, p2, K, config_.two_view, current_.frame_index);
+    std::optional<TwoViewGravity> gravity;
+    if (f1.gravity_c && current_.gravity_c && f1.gravity_c->norm() > 1.0 &&
+        current_.gravity_c->norm() > 1.0) {
+      gravity =
+          TwoViewGravity{*f1.gravity_c, *current_.gravity_c, config_.init_gravity_tolerance_deg};
+    }
+    TwoViewResult tv =
+        reconstructTwoView(p1, p2, K, config_.two_view, current_.frame_index, gravity);
     if (!tv.success) {
       result->message = "initialising: " + tv.reason;
       continue;

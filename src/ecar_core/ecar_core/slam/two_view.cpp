@@ -363,7 +363,8 @@ double parallaxDeg(const Eigen::Vector3d& p_w, const Eigen::Vector3d& c1_w,
 // zero where valid is false); T_c2_c1 stays identity unless success.
 TwoViewResult reconstructTwoView(const std::vector<Eigen::Vector2d>& pts1,
                                  const std::vector<Eigen::Vector2d>& pts2, const Eigen::Matrix3d& K,
-                                 const TwoViewConfig& config, uint32_t seed) {
+                                 const TwoViewConfig& config, uint32_t seed,
+                                 const std::optional<TwoViewGravity>& gravity) {
   TwoViewResult result;
   if (pts1.size() != pts2.size()) {
     return refuse(result, "size mismatch: " + std::to_string(pts1.size()) + " vs " +
@@ -397,52 +398,92 @@ TwoViewResult reconstructTwoView(const std::vector<Eigen::Vector2d>& pts1,
   const double s_h = std::max(h.score, 0.0);
   const double s_f = std::max(f.score, 0.0);
   if (s_h + s_f <= 0.0) return refuse(result, "too few inliers: 0");
-  result.used_homography = s_h / (s_h + s_f) > config.homography_ratio;
-  const ScoredModel& model = result.used_homography ? h : f;
-  if (model.num_inliers < config.min_triangulated) {
-    return refuse(result, "too few inliers: " + std::to_string(model.num_inliers));
-  }
-
-  // Motion hypotheses of the chosen model, each checked by triangulation.
-  const std::vector<Motion> motions = result.used_homography
-                                          ? motionsFromHomography(model.M, K)
-                                          : motionsFromEssential(K.transpose() * model.M * K);
   const Eigen::Matrix3d K_inv = K.inverse();
   std::vector<Eigen::Vector2d> x1(n), x2(n);
   for (int i = 0; i < n; ++i) {
     x1[i] = (K_inv * p1[i].homogeneous()).hnormalized();
     x2[i] = (K_inv * p2[i].homogeneous()).hnormalized();
   }
-  std::vector<MotionCheck> checks;
-  for (const Motion& m : motions) {
-    checks.push_back(checkMotion(m, p1, p2, x1, x2, model.inliers, K, sigma));
+  // The motion hypotheses of one model, each checked by triangulation; the
+  // best one unless it is refused (the reason then).
+  struct Selected {
+    Motion motion;
+    MotionCheck check;
+    std::string refused;
+    bool ambiguous = false;
+  };
+  const auto select = [&](bool homography) {
+    Selected out;
+    const ScoredModel& model = homography ? h : f;
+    if (model.num_inliers < config.min_triangulated) {
+      out.refused = "too few inliers: " + std::to_string(model.num_inliers);
+      return out;
+    }
+    const std::vector<Motion> motions = homography
+                                            ? motionsFromHomography(model.M, K)
+                                            : motionsFromEssential(K.transpose() * model.M * K);
+    std::vector<MotionCheck> checks;
+    int against_gravity = 0;
+    for (const Motion& m : motions) {
+      checks.push_back(checkMotion(m, p1, p2, x1, x2, model.inliers, K, sigma));
+      if (gravity) {
+        const double c = (m.R * gravity->up_c1.normalized()).dot(gravity->up_c2.normalized());
+        if (c < std::cos(gravity->max_deg * M_PI / 180.0) && checks.back().num_good > 0) {
+          checks.back().num_good = 0;  // ruled out by the accelerometer
+          ++against_gravity;
+        }
+      }
+    }
+    int best = -1;
+    for (size_t k = 0; k < checks.size(); ++k) {
+      if (best < 0 || checks[k].num_good > checks[best].num_good) best = static_cast<int>(k);
+    }
+    if (best < 0 || checks[best].num_good == 0) {
+      out.refused = against_gravity > 0
+                        ? "no motion hypothesis agrees with gravity"
+                        : "weak baseline or degenerate motion: no hypothesis triangulates points "
+                          "in front of both cameras";
+      return out;
+    }
+    int second_good = 0;
+    for (size_t k = 0; k < checks.size(); ++k) {
+      if (static_cast<int>(k) != best) second_good = std::max(second_good, checks[k].num_good);
+    }
+    out.motion = motions[best];
+    out.check = std::move(checks[best]);
+    // Low parallax is checked first: it is the usual cause of the other failures.
+    if (out.check.median_parallax_deg < config.min_parallax_deg) {
+      out.refused = "weak baseline: parallax " + formatDouble(out.check.median_parallax_deg, 2) +
+                    " deg < " + formatDouble(config.min_parallax_deg, 2);
+      return out;
+    }
+    if (second_good > config.ambiguity_ratio * out.check.num_good) {
+      out.ambiguous = true;
+      out.refused = "ambiguous motion: best hypothesis triangulates " +
+                    std::to_string(out.check.num_good) + " points, second " +
+                    std::to_string(second_good);
+    }
+    return out;
+  };
+  result.used_homography = s_h / (s_h + s_f) > config.homography_ratio;
+  Selected selected = select(result.used_homography);
+  if (selected.ambiguous && result.used_homography) {
+    // A plane's two decompositions explain the views equally: the scene is
+    // not one plane (walls and floor) but the baseline is still short. The
+    // fundamental matrix's motion decides when it is itself unambiguous.
+    Selected from_f = select(false);
+    if (from_f.refused.empty()) {
+      selected = std::move(from_f);
+      result.used_homography = false;
+    } else {
+      selected.refused += " (homography; fundamental: " + from_f.refused + ")";
+    }
   }
-  int best = -1;
-  for (size_t k = 0; k < checks.size(); ++k) {
-    if (best < 0 || checks[k].num_good > checks[best].num_good) best = static_cast<int>(k);
-  }
-  if (best < 0 || checks[best].num_good == 0) {
-    return refuse(result,
-                  "weak baseline or degenerate motion: no hypothesis triangulates points in front "
-                  "of both cameras");
-  }
-  int second_good = 0;
-  for (size_t k = 0; k < checks.size(); ++k) {
-    if (static_cast<int>(k) != best) second_good = std::max(second_good, checks[k].num_good);
-  }
-  Motion motion = motions[best];
-  MotionCheck check = std::move(checks[best]);
-  result.parallax_deg = check.median_parallax_deg;
-  // Low parallax is checked first: it is the usual cause of the other failures.
-  if (check.median_parallax_deg < config.min_parallax_deg) {
-    return refuse(result, "weak baseline: parallax " + formatDouble(check.median_parallax_deg, 2) +
-                              " deg < " + formatDouble(config.min_parallax_deg, 2));
-  }
-  if (second_good > config.ambiguity_ratio * check.num_good) {
-    return refuse(result, "ambiguous motion: best hypothesis triangulates " +
-                              std::to_string(check.num_good) + " points, second " +
-                              std::to_string(second_good));
-  }
+  result.parallax_deg = selected.check.median_parallax_deg;
+  if (!selected.refused.empty()) return refuse(result, selected.refused);
+  const ScoredModel& model = result.used_homography ? h : f;
+  Motion motion = selected.motion;
+  MotionCheck check = std::move(selected.check);
 
   // From F, the motion is refined with K known (its inliers re-selected under
   // the refined essential matrix), and kept unless that loses points.

@@ -48,13 +48,26 @@ struct TwoViewResult {
   int num_valid = 0;
 };
 
+/// What the device's accelerometer says of the two views: the up direction in
+/// each camera. A motion hypothesis whose rotation does not carry up_c1 onto
+/// up_c2 within max_deg is ruled out. This settles the decompositions that
+/// cheirality cannot tell apart, such as the pair twisted by 180 degrees about
+/// a baseline along the optical axis (walking straight ahead).
+struct TwoViewGravity {
+  Eigen::Vector3d up_c1 = Eigen::Vector3d::UnitY();
+  Eigen::Vector3d up_c2 = Eigen::Vector3d::UnitY();
+  double max_deg = 10.0;
+};
+
 /// Relative pose and structure from correspondences pts1[i] <-> pts2[i]
 /// (undistorted pixels) of a calibrated camera K. Computes a homography and a
 /// fundamental matrix with RANSAC in parallel hypotheses, scores both, picks
-/// one, recovers the motion (rejecting ambiguous decompositions) and
-/// triangulates; refuses weak baselines (low parallax or too few points).
+/// one, recovers the motion (rejecting ambiguous decompositions; with
+/// `gravity`, only among the hypotheses that agree with it) and triangulates;
+/// refuses weak baselines (low parallax or too few points).
 TwoViewResult reconstructTwoView(const std::vector<Eigen::Vector2d>& pts1,
                                  const std::vector<Eigen::Vector2d>& pts2, const Eigen::Matrix3d& K,
-                                 const TwoViewConfig& config, uint32_t seed = 1);
+                                 const TwoViewConfig& config, uint32_t seed = 1,
+                                 const std::optional<TwoViewGravity>& gravity = std::nullopt);
 
 }  // namespace ecar

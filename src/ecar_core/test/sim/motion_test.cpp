@@ -117,5 +117,22 @@ TEST(MotionTest, OdometryStartsAtIdentityAndDriftsRealistically) {
   }
 }
 
+// ring_small's `blind` is walker's walk with the camera blank for 3 s from
+// 4 s on: exactly those samples are marked, and the motion is walker's.
+TEST(MotionTest, BlankSpanMarksItsSamplesOnly) {
+  const Scene scene = loadScene(kScenes + "/ring_small.yaml");
+  const auto blind = generateMotion(scene, scene.device("blind"), 30.0);
+  const auto walker = generateMotion(scene, scene.device("walker"), 30.0);
+  ASSERT_EQ(blind.size(), walker.size());
+  int blank = 0;
+  for (const MotionSample& m : blind) {
+    const bool inside = m.timestamp >= 4.0 - 1e-9 && m.timestamp < 7.0 - 1e-9;
+    EXPECT_EQ(m.blank, inside) << "t = " << m.timestamp;
+    blank += m.blank ? 1 : 0;
+  }
+  EXPECT_EQ(blank, 90);
+  for (const MotionSample& m : walker) EXPECT_FALSE(m.blank);
+}
+
 }  // namespace
 }  // namespace ecar

@@ -166,6 +166,22 @@ TEST_F(RoomRenderTest, ColourAndGreyAgreeAndNoiseChangesPixels) {
   EXPECT_LT(mean_abs, 5.0);
 }
 
+// A covered camera: one grey level plus the noise, nothing hit.
+TEST_F(RoomRenderTest, BlankViewIsUniformGreyWithNoise) {
+  RenderOptions opt;
+  opt.blank = true;
+  opt.noise_sigma = 2.0f;
+  RenderOutput out;
+  renderer_->render(lookAt({2.0, 2.0, 1.4}, {3.0, 2.5, 0.0}), opt, &out);
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(out.image, mean, stddev);
+  EXPECT_NEAR(mean[0], 140.0, 1.0);
+  EXPECT_GT(stddev[0], 1.0);
+  EXPECT_LT(stddev[0], 3.0);
+  EXPECT_EQ(cv::countNonZero(out.labels), 0);
+  EXPECT_EQ(cv::countNonZero(out.depth), 0);
+}
+
 TEST_F(RoomRenderTest, CameraInsideAWallSeesNothingAndBadPoseThrows) {
   RenderOutput out;
   renderer_->render(lookAt({-1.0, 2.0, 1.0}, {3.0, 2.0, 1.0}), RenderOptions(), &out);

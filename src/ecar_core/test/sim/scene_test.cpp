@@ -129,6 +129,12 @@ TEST_F(BadSceneTest, ErrorsNameTheKey) {
        "devices[0].trajectory: unknown key 'sped'"},
       {base + "devices:\n  - name: d\n    trajectory: {type: shake, target: [1, 1, 1]}\n",
        "devices[0].trajectory: missing key 'position'"},
+      {base + "devices:\n  - name: d\n    trajectory: {type: walk, waypoints: [[1, 1], [2, 1]], "
+              "blank: [2, 0]}\n",
+       "devices[0].trajectory: key 'blank' must be [start_s, duration_s]"},
+      {base + "devices:\n  - name: d\n    trajectory: {type: walk, waypoints: [[1, 1], [2, 1]], "
+              "blank: [2]}\n",
+       "devices[0].trajectory: key 'blank' must be [start_s, duration_s]"},
       {base + "devices:\n  - name: a-b\n    trajectory: {type: walk, waypoints: [[1, 1], [2, "
               "1]]}\n",
        "must be a ROS name"},

@@ -1,7 +1,9 @@
 // The atlas on the small ring (config/scenes/ring_small.yaml): two devices start
 // at the same time on opposite sides of the ring. Each makes a map of its own
 // at once (neither waits for the other's map), and when walker_b reaches the
-// ground walker mapped first the two maps merge into one.
+// ground walker mapped first the two maps merge into one. And a device whose
+// camera goes blank for 3 s and sees again somewhere unmapped: a new map at
+// once, merged back when it sees its first map's ground again.
 #include "ecar_core/slam/atlas.h"
 
 #include <gtest/gtest.h>
@@ -86,6 +88,72 @@ TEST(AtlasTest, DevicesStartingApartMakeTheirOwnMapsWhichMerge) {
       "maps %zu at most; first tracked uploads %d and %d; merged at upload %d (%d inliers, "
       "%.0f ms); keyframe ATE after the merge %.4f m\n",
       most_maps, first_tracked[0], first_tracked[1], merged_at, m.inliers, m.ms, ate);
+  EXPECT_LT(ate, 0.08);
+}
+
+TEST(AtlasTest, ADeviceBlindFor3sStartsANewMapAndIsMergedBack) {
+  const Scene scene = loadScene(kScenes + "/ring_small.yaml");
+  const Renderer renderer(scene);
+  const std::vector<MotionSample> motion =
+      generateMotion(scene, scene.device("blind"), scene.camera.fps);
+  Atlas atlas(renderer.camera(), SlamConfig());
+  RenderOptions opt;
+  RenderOutput r;
+  int lost_at = -1, textured_at = -1, tracked_again = -1, merged_at = -1;
+  MapId before, after;
+  for (size_t u = 0; 4 * u < motion.size(); ++u) {
+    const size_t i = 4 * u;
+    opt.noise_seed = static_cast<uint32_t>(i);
+    opt.blank = motion[i].blank;
+    renderer.render(motion[i].T_w_c, opt, &r);
+    MapId map;
+    const TrackResult t =
+        atlas.track(DeviceId(1), r.image, motion[i].timestamp, static_cast<uint32_t>(i),
+                    motion[i].gravity_c, motion[i].T_o_c, &map);
+    const bool ok = t.state == TrackingState::kOk;
+    if (lost_at < 0 && motion[i].blank) {
+      lost_at = static_cast<int>(u);
+      before = atlas.mapOf(DeviceId(1));
+      EXPECT_FALSE(ok) << "tracked a blank image at upload " << u;
+    }
+    if (lost_at >= 0 && textured_at < 0 && !motion[i].blank) textured_at = static_cast<int>(u);
+    if (textured_at >= 0 && tracked_again < 0 && ok) {
+      tracked_again = static_cast<int>(u);
+      after = map;
+    }
+    if (merged_at < 0 && !atlas.merges().empty()) merged_at = static_cast<int>(u);
+  }
+  atlas.finish();
+  ASSERT_GE(lost_at, 0) << "the scene's device never goes blank";
+  ASSERT_GE(tracked_again, 0) << "never tracked again after the blank";
+  std::printf(
+      "blank from upload %d, textured again at %d, tracked again at %d (map %u, was %u); "
+      "merged back at upload %d\n",
+      lost_at, textured_at, tracked_again, after.value, before.value, merged_at);
+  // Unmapped ground: a new map, within 5 uploads of seeing texture again.
+  EXPECT_LE(tracked_again - textured_at, 5);
+  EXPECT_NE(after, before) << "relocalised in its first map: the scene's new place was mapped";
+  // The walk ends in the south corridor it mapped first, looking the same way.
+  ASSERT_GT(merged_at, tracked_again) << "the maps never merged";
+  EXPECT_EQ(atlas.mapIds().size(), 1u);
+  const MergeEvent m = atlas.merges().front();
+  EXPECT_TRUE((m.into == before && m.from == after) || (m.into == after && m.from == before));
+  const std::shared_ptr<SlamSystem> slam = atlas.map(atlas.mapIds().front());
+  std::vector<Eigen::Vector3d> est, gt;
+  {
+    auto lock = slam->map().readLock();
+    EXPECT_EQ(slam->map().checkConsistency(), "");
+    for (const KeyFrameId id : slam->map().keyframeIds()) {
+      const KeyFrame* kf = slam->map().keyframe(id);
+      est.push_back(kf->center());
+      gt.push_back(motion[kf->frame_index].T_w_c.translation());
+    }
+  }
+  const Sim3 S = umeyama(est, gt, true);
+  std::vector<double> e;
+  for (size_t i = 0; i < est.size(); ++i) e.push_back((S * est[i] - gt[i]).norm());
+  const double ate = computeStats(e).rmse;
+  std::printf("keyframe ATE of the merged map %.4f m (%zu keyframes)\n", ate, est.size());
   EXPECT_LT(ate, 0.08);
 }
 

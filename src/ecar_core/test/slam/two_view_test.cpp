@@ -316,6 +316,77 @@ TEST(TwoViewTest, PlanarTwofoldAmbiguityIsRefused) {
   EXPECT_NE(r.reason.find("ambiguous"), std::string::npos) << r.reason;
 }
 
+// Points of a corridor seen from camera 1 (y down): walls at x = -1.2 and
+// 1.2 m, the floor 1.5 m below, the end wall `end_m` ahead.
+Scene corridorScene(const SE3& T_c2_c1, double end_m, double noise_px, std::mt19937* rng,
+                    double keep_near = 1.0) {
+  const Eigen::Matrix3d K = intrinsics();
+  std::uniform_real_distribution<double> ux(0.0, kWidth), uy(0.0, kHeight);
+  std::normal_distribution<double> noise(0.0, noise_px);
+  Scene s;
+  s.T_c2_c1 = T_c2_c1;
+  while (s.points_c1.size() < 300) {
+    const Eigen::Vector3d ray = K.inverse() * Eigen::Vector3d(ux(*rng), uy(*rng), 1.0);
+    double t = end_m / ray.z();
+    if (ray.x() < 0) t = std::min(t, -1.2 / ray.x());
+    if (ray.x() > 0) t = std::min(t, 1.2 / ray.x());
+    if (ray.y() > 0) t = std::min(t, 1.5 / ray.y());
+    if (t * ray.z() < end_m - 1e-9 &&
+        std::uniform_real_distribution<double>(0, 1)(*rng) > keep_near)
+      continue;
+    const Eigen::Vector3d p_c1 = t * ray;
+    const Eigen::Vector3d p_c2 = T_c2_c1 * p_c1;
+    if (p_c1.z() < 0.5 || p_c2.z() < 0.5) continue;
+    const Eigen::Vector2d u1 = (K * p_c1).hnormalized(), u2 = (K * p_c2).hnormalized();
+    if (!inImage(u1) || !inImage(u2)) continue;
+    s.points_c1.push_back(p_c1);
+    s.pts1.push_back(u1 + Eigen::Vector2d(noise(*rng), noise(*rng)));
+    s.pts2.push_back(u2 + Eigen::Vector2d(noise(*rng), noise(*rng)));
+    s.outlier.push_back(false);
+  }
+  return s;
+}
+
+// Walking 20 cm down a corridor towards its end wall 4 m ahead, most points
+// on that wall (a third of those on the side walls and floor kept): the
+// homography scores best and its two decompositions tie, but the scene is
+// not one plane, so the fundamental matrix's motion decides (before, this
+// was refused as ambiguous until the device had walked on for seconds).
+TEST(TwoViewTest, CorridorShortBaselineTieIsDecidedByTheFundamental) {
+  std::mt19937 rng(31);
+  const SE3 T_c2_c1 =
+      secondCamera(Eigen::Vector3d(0.03, 0.01, 0.2), Eigen::Vector3d(0.0, 0.5 / kRadToDeg, 0.0));
+  const Scene s = corridorScene(T_c2_c1, 4.0, 1.0, &rng, 0.3);
+  const TwoViewResult r = reconstructTwoView(s.pts1, s.pts2, intrinsics(), TwoViewConfig());
+  ASSERT_TRUE(r.success) << r.reason;
+  EXPECT_FALSE(r.used_homography);
+  const Eigen::Matrix3d dR = r.T_c2_c1.linear().transpose() * T_c2_c1.linear();
+  EXPECT_LT(rotationAngle(dR) * kRadToDeg, 0.3);
+  EXPECT_LT(angleDeg(r.T_c2_c1.translation(), T_c2_c1.translation()), 5.0);
+  EXPECT_GT(r.num_valid, 150);
+}
+
+// The accelerometer's up direction in each view rules out hypotheses that
+// rotate it: the true motion passes, a reading 40 degrees off refuses all.
+TEST(TwoViewTest, GravityRulesOutMotionsThatRotateUp) {
+  std::mt19937 rng(7);
+  const SE3 T_c2_c1 =
+      secondCamera(Eigen::Vector3d(0.3, 0.0, 0.0), Eigen::Vector3d(0.0, -2.0 / kRadToDeg, 0.0));
+  const Scene s = makeScene(T_c2_c1, Structure::kGeneral, 300, 1.0, 0.1, &rng);
+  const Eigen::Vector3d up_c1 = Eigen::Vector3d(0.0, -1.0, 0.1).normalized();
+  TwoViewGravity agrees{up_c1, T_c2_c1.linear() * up_c1, 10.0};
+  const TwoViewResult r =
+      reconstructTwoView(s.pts1, s.pts2, intrinsics(), TwoViewConfig(), 1, agrees);
+  ASSERT_TRUE(r.success) << r.reason;
+  expectMotionAndStructure(s, r, 0.5, 2.0, 0.04, 0.05);
+  TwoViewGravity disagrees = agrees;
+  disagrees.up_c2 = expSO3(Eigen::Vector3d(40.0 / kRadToDeg, 0.0, 0.0)) * agrees.up_c2;
+  const TwoViewResult bad =
+      reconstructTwoView(s.pts1, s.pts2, intrinsics(), TwoViewConfig(), 1, disagrees);
+  EXPECT_FALSE(bad.success);
+  EXPECT_NE(bad.reason.find("gravity"), std::string::npos) << bad.reason;
+}
+
 TEST(TwoViewTest, DeterministicForASeed) {
   std::mt19937 rng(7);
   const SE3 T_c2_c1 = secondCamera(Eigen::Vector3d(0.3, 0.0, 0.0), Eigen::Vector3d::Zero());
