@@ -220,9 +220,7 @@ int run(const Args& args) {
     atlas.setCamera(ecar::DeviceId(static_cast<uint32_t>(d + 1)), runs[d].dataset.camera());
   }
   // Which upload of which device found each merge and each loop.
-  std::vector<std::pair<size_t, int>> merge_found_by, loop_found_by;
-  std::vector<size_t> merge_steps;
-  std::vector<offline::Step> steps;
+  offline::AtlasLog log;
   bool metric = args.use_odometry;
   for (const auto& r : runs) {
     if (r.dataset.size() == 0 || !r.dataset.frame(0).T_o_c_odom) metric = false;
@@ -267,15 +265,21 @@ int run(const Args& args) {
     ecar::MapId map_id;
     const size_t merges_before = atlas.merges().size();
     const size_t loops_before = atlas.loopClosures().size();
+    const auto call_start = std::chrono::steady_clock::now();
     const ecar::TrackResult res =
         atlas.track(ecar::DeviceId(static_cast<uint32_t>(d + 1)), image, f.timestamp,
                     static_cast<uint32_t>(index), f.gravity_c, odom, &map_id);
+    const double call_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - call_start)
+            .count();
     for (size_t m = merges_before; m < atlas.merges().size(); ++m) {
-      merge_found_by.emplace_back(d, upload);
-      merge_steps.push_back(step);
+      log.merge_found_by.emplace_back(d, upload);
+      log.merge_steps.push_back(step);
     }
-    for (size_t l = loops_before; l < atlas.loopClosures().size(); ++l)
-      loop_found_by.emplace_back(d, upload);
+    for (size_t l = loops_before; l < atlas.loopClosures().size(); ++l) {
+      log.loop_found_by.emplace_back(d, upload);
+      log.loop_steps.push_back(step);
+    }
     if (args.verbose) {
       std::fprintf(stderr, "[slam] %s upload %d frame %zu: %s, %zu points%s%s\n", r.name.c_str(),
                    upload, index, ecar::toString(res.state), res.tracked.size(),
@@ -284,7 +288,7 @@ int run(const Args& args) {
     orb_ms.push_back(res.orb_ms);
     track_ms.push_back(res.track_ms);
     const bool ok = res.state == ecar::TrackingState::kOk;
-    steps.push_back({d, upload, ok, ok ? map_id : ecar::MapId()});
+    log.steps.push_back({d, upload, ok, ok ? map_id : ecar::MapId(), call_ms});
     r.upload_tracked.push_back(ok);
     r.upload_blank.push_back(offline::blankImage(image));
     r.upload_initialised.push_back(res.initialised);
@@ -526,6 +530,14 @@ int run(const Args& args) {
       "map bending: map-to-world rotation off its mean by median %.3f deg, max %.3f deg | map "
       "up axis off gravity: median %.3f deg, max %.3f deg\n",
       rotation.median, rotation.max, tilt.median, tilt.max);
+  {
+    std::vector<double> calls;
+    for (const offline::Step& st : log.steps) calls.push_back(st.call_ms);
+    std::printf("track() calls ms: median %.1f p95 %.1f\n", percentile(calls, 0.5),
+                percentile(calls, 0.95));
+    summary["call_median_ms"] = percentile(calls, 0.5);
+    summary["call_p95_ms"] = percentile(calls, 0.95);
+  }
   std::printf(
       "times ms: ORB median %.1f p95 %.1f | tracking median %.1f p95 %.1f | local BA "
       "median %.1f p95 %.1f (%zu runs)\n",
@@ -543,82 +555,8 @@ int run(const Args& args) {
       {"tracking_median", percentile(track_ms, 0.5)}, {"tracking_p95", percentile(track_ms, 0.95)},
       {"local_ba_median", percentile(ba, 0.5)},       {"local_ba_p95", percentile(ba, 0.95)}};
   summary["wall_s"] = wall_s;
-  // Loops closed: at which upload of which device, with how many inliers, and
-  // what it cost (detection, pose graph and correction, global BA).
-  summary["maps"] = atlas.mapIds().size();
-  summary["merges"] = nlohmann::json::array();
-  const std::vector<ecar::MergeEvent> merges = atlas.merges();
-  const std::vector<offline::MergeOverlap> overlaps =
-      have_ate
-          ? offline::mergeOverlaps(slam, S, runs, steps, merges, merge_steps, atlas_config.id_range)
-          : std::vector<offline::MergeOverlap>();
-  for (size_t k = 0; k < merges.size(); ++k) {
-    const ecar::MergeEvent& m = merges[k];
-    const size_t d = k < merge_found_by.size() ? merge_found_by[k].first : m.device.value - 1;
-    const int upload = k < merge_found_by.size() ? merge_found_by[k].second : -1;
-    std::printf(
-        "maps merged: %s upload %d (keyframe %u) found map %u in map %u (keyframe %u), %d "
-        "inliers, scale %.4f; %zu keyframes moved, %zu points fused, %.1f ms\n",
-        d < runs.size() ? runs[d].name.c_str() : "?", upload, m.query.value, m.from.value,
-        m.into.value, m.match.value, m.inliers, m.scale, m.keyframes_moved, m.points_fused, m.ms);
-    nlohmann::json entry = {
-        {"upload", upload},     {"device", d < runs.size() ? runs[d].name : "?"},
-        {"inliers", m.inliers}, {"ms", m.ms},
-        {"into", m.into.value}, {"from", m.from.value},
-        {"scale", m.scale},     {"overlap_device", nullptr},
-        {"overlap_upload", -1}, {"delay_uploads", -1}};
-    if (k < overlaps.size() && overlaps[k].step >= 0) {
-      const offline::Step& o = steps[static_cast<size_t>(overlaps[k].step)];
-      entry["overlap_device"] = runs[o.device].name;
-      entry["overlap_upload"] = o.upload;
-      entry["delay_uploads"] = overlaps[k].delay;
-      std::printf(
-          "  first overlap (30 deg, 20%% of the distance): %s upload %d; merged %d "
-          "uploads of %s %s\n",
-          runs[o.device].name.c_str(), o.upload, std::abs(overlaps[k].delay),
-          d < runs.size() ? runs[d].name.c_str() : "?",
-          overlaps[k].delay < 0 ? "before it" : "later");
-    } else if (k < overlaps.size()) {
-      std::printf("  first overlap: none measured\n");
-    }
-    summary["merges"].push_back(entry);
-  }
-  if (!merge_steps.empty()) {
-    const ecar::ErrorStats after = offline::ateAfterStep(runs, merge_steps.back(), !metric);
-    const ecar::ErrorStats after_sim3 = offline::ateAfterStep(runs, merge_steps.back(), true);
-    std::printf(
-        "ATE after the last merge (one transform, %zu uploads): %s rmse %.4f m, Sim(3) rmse "
-        "%.4f m\n",
-        after.n, metric ? "SE(3)" : "Sim(3)", after.rmse, after_sim3.rmse);
-    summary["ate_after_merges"] = ecar::toJson(after);
-    summary["ate_after_merges_sim3"] = ecar::toJson(after_sim3);
-  }
-  std::printf("maps at the end: %zu\n", atlas.mapIds().size());
-  summary["loop_closures"] = nlohmann::json::array();
-  const std::vector<ecar::LoopClosure> loops = atlas.loopClosures();
-  for (size_t k = 0; k < loops.size(); ++k) {
-    const ecar::LoopClosure& l = loops[k];
-    const size_t d = k < loop_found_by.size() ? loop_found_by[k].first : l.device.value - 1;
-    const int upload = k < loop_found_by.size() ? loop_found_by[k].second : -1;
-    std::printf(
-        "loop closed: %s upload %d (keyframe %u) with keyframe %u, %d inliers, similarity scale "
-        "%.4f, the keyframe moved %.3f m; detect %.1f ms, correct %.1f ms (%zu keyframes, %zu "
-        "points moved, %zu fused), global BA %.1f ms\n",
-        d < runs.size() ? runs[d].name.c_str() : "?", upload, l.query.value, l.match.value,
-        l.inliers, l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.keyframes_moved, l.points_moved,
-        l.points_fused, l.global_ba_ms);
-    summary["loop_closures"].push_back({{"upload", upload},
-                                        {"device", d < runs.size() ? runs[d].name : "?"},
-                                        {"keyframe", l.query.value},
-                                        {"match", l.match.value},
-                                        {"inliers", l.inliers},
-                                        {"scale", l.scale},
-                                        {"moved_m", l.drift_m},
-                                        {"ms", l.detect_ms + l.correct_ms},
-                                        {"detect_ms", l.detect_ms},
-                                        {"correct_ms", l.correct_ms},
-                                        {"global_ba_ms", l.global_ba_ms}});
-  }
+  offline::reportAtlasEvents(atlas, have_ate ? &slam : nullptr, S, runs, log, metric,
+                             atlas_config.id_range, &summary);
   if (!args.summary.empty()) {
     std::ofstream out(args.summary);
     out << summary.dump(2) << "\n";

@@ -7,10 +7,14 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
+#include <cstdlib>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
+#include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
 #include "ecar_core/eval/trajectory_eval.h"
@@ -26,8 +30,27 @@ struct Step {
   size_t device = 0;
   int upload = 0;
   bool tracked = false;
-  ecar::MapId map;  ///< the map it was tracked in (invalid when not tracked)
+  ecar::MapId map;       ///< the map it was tracked in (invalid when not tracked)
+  double call_ms = 0.0;  ///< the whole Atlas::track call (a merge's pause included)
 };
+
+/// Atlas::track call times of the `n` uploads after `step` (while what the
+/// event queued, such as a global BA, runs beside them with --threads): median
+/// and p95, and the call at `step` itself.
+struct CallTimes {
+  double at_ms = 0.0, median_ms = 0.0, p95_ms = 0.0;
+};
+inline CallTimes callTimesAfter(const std::vector<Step>& steps, size_t step, size_t n) {
+  CallTimes t;
+  if (step >= steps.size()) return t;
+  t.at_ms = steps[step].call_ms;
+  std::vector<double> after;
+  for (size_t s = step + 1; s < steps.size() && s <= step + n; ++s)
+    after.push_back(steps[s].call_ms);
+  t.median_ms = ecar::percentile(after, 0.5);
+  t.p95_ms = ecar::percentile(after, 0.95);
+  return t;
+}
 
 /// A run of untracked uploads after a device was first tracked.
 struct Gap {
@@ -178,6 +201,114 @@ inline ecar::ErrorStats ateAfterStep(const std::vector<DeviceRun>& runs, size_t 
   std::vector<double> e;
   for (size_t i = 0; i < est.size(); ++i) e.push_back((T * est[i] - gt[i]).norm());
   return ecar::computeStats(e);
+}
+
+/// Everything the tool records of the atlas while it runs.
+struct AtlasLog {
+  std::vector<Step> steps;
+  std::vector<std::pair<size_t, int>> merge_found_by, loop_found_by;  ///< device, upload
+  std::vector<size_t> merge_steps, loop_steps;
+};
+
+/// Prints the merges (with their first overlap, measured in `slam` aligned by
+/// S when it is given, and the track() times around them), the ATE after the
+/// last merge and the loops closed, and puts them into the summary: `maps`,
+/// `merges`, `ate_after_merges(_sim3)`, `loop_closures`.
+inline void reportAtlasEvents(const ecar::Atlas& atlas, const ecar::SlamSystem* slam,
+                              const ecar::Sim3& S, const std::vector<DeviceRun>& runs,
+                              const AtlasLog& log, bool metric, uint32_t id_range,
+                              nlohmann::json* summary) {
+  const std::vector<Step>& steps = log.steps;
+  const auto& merge_found_by = log.merge_found_by;
+  const auto& loop_found_by = log.loop_found_by;
+  const std::vector<size_t>& merge_steps = log.merge_steps;
+  const std::vector<size_t>& loop_steps = log.loop_steps;
+  (*summary)["maps"] = atlas.mapIds().size();
+  (*summary)["merges"] = nlohmann::json::array();
+  const std::vector<ecar::MergeEvent> merges = atlas.merges();
+  const std::vector<MergeOverlap> overlaps =
+      slam ? mergeOverlaps(*slam, S, runs, steps, merges, merge_steps, id_range)
+           : std::vector<MergeOverlap>();
+  for (size_t k = 0; k < merges.size(); ++k) {
+    const ecar::MergeEvent& m = merges[k];
+    const size_t d = k < merge_found_by.size() ? merge_found_by[k].first : m.device.value - 1;
+    const int upload = k < merge_found_by.size() ? merge_found_by[k].second : -1;
+    std::printf(
+        "maps merged: %s upload %d (keyframe %u) found map %u in map %u (keyframe %u), %d "
+        "inliers, scale %.4f; %zu keyframes moved, %zu points fused, %.1f ms\n",
+        d < runs.size() ? runs[d].name.c_str() : "?", upload, m.query.value, m.from.value,
+        m.into.value, m.match.value, m.inliers, m.scale, m.keyframes_moved, m.points_fused, m.ms);
+    nlohmann::json entry = {
+        {"upload", upload},     {"device", d < runs.size() ? runs[d].name : "?"},
+        {"inliers", m.inliers}, {"ms", m.ms},
+        {"into", m.into.value}, {"from", m.from.value},
+        {"scale", m.scale},     {"overlap_device", nullptr},
+        {"overlap_upload", -1}, {"delay_uploads", -1}};
+    if (k < overlaps.size() && overlaps[k].step >= 0) {
+      const Step& o = steps[static_cast<size_t>(overlaps[k].step)];
+      entry["overlap_device"] = runs[o.device].name;
+      entry["overlap_upload"] = o.upload;
+      entry["delay_uploads"] = overlaps[k].delay;
+      std::printf(
+          "  first overlap (30 deg, 20%% of the distance): %s upload %d; merged %d "
+          "uploads of %s %s\n",
+          runs[o.device].name.c_str(), o.upload, std::abs(overlaps[k].delay),
+          d < runs.size() ? runs[d].name.c_str() : "?",
+          overlaps[k].delay < 0 ? "before it" : "later");
+    } else if (k < overlaps.size()) {
+      std::printf("  first overlap: none measured\n");
+    }
+    if (k < merge_steps.size()) {
+      const CallTimes t = callTimesAfter(steps, merge_steps[k], 20);
+      std::printf("  track() calls: the merging one %.1f ms; the next 20 median %.1f p95 %.1f ms\n",
+                  t.at_ms, t.median_ms, t.p95_ms);
+      entry["call_ms"] = t.at_ms;
+      entry["next_calls_median_ms"] = t.median_ms;
+      entry["next_calls_p95_ms"] = t.p95_ms;
+    }
+    (*summary)["merges"].push_back(entry);
+  }
+  if (!merge_steps.empty()) {
+    const ecar::ErrorStats after = ateAfterStep(runs, merge_steps.back(), !metric);
+    const ecar::ErrorStats after_sim3 = ateAfterStep(runs, merge_steps.back(), true);
+    std::printf(
+        "ATE after the last merge (one transform, %zu uploads): %s rmse %.4f m, Sim(3) rmse "
+        "%.4f m\n",
+        after.n, metric ? "SE(3)" : "Sim(3)", after.rmse, after_sim3.rmse);
+    (*summary)["ate_after_merges"] = ecar::toJson(after);
+    (*summary)["ate_after_merges_sim3"] = ecar::toJson(after_sim3);
+  }
+  std::printf("maps at the end: %zu\n", atlas.mapIds().size());
+  (*summary)["loop_closures"] = nlohmann::json::array();
+  const std::vector<ecar::LoopClosure> loops = atlas.loopClosures();
+  for (size_t k = 0; k < loops.size(); ++k) {
+    const ecar::LoopClosure& l = loops[k];
+    const size_t d = k < loop_found_by.size() ? loop_found_by[k].first : l.device.value - 1;
+    const int upload = k < loop_found_by.size() ? loop_found_by[k].second : -1;
+    std::printf(
+        "loop closed: %s upload %d (keyframe %u) with keyframe %u, %d inliers, similarity scale "
+        "%.4f, the keyframe moved %.3f m; detect %.1f ms, correct %.1f ms (%zu keyframes, %zu "
+        "points moved, %zu fused), global BA %.1f ms\n",
+        d < runs.size() ? runs[d].name.c_str() : "?", upload, l.query.value, l.match.value,
+        l.inliers, l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.keyframes_moved, l.points_moved,
+        l.points_fused, l.global_ba_ms);
+    (*summary)["loop_closures"].push_back({{"upload", upload},
+                                           {"device", d < runs.size() ? runs[d].name : "?"},
+                                           {"keyframe", l.query.value},
+                                           {"match", l.match.value},
+                                           {"inliers", l.inliers},
+                                           {"scale", l.scale},
+                                           {"moved_m", l.drift_m},
+                                           {"ms", l.detect_ms + l.correct_ms},
+                                           {"detect_ms", l.detect_ms},
+                                           {"correct_ms", l.correct_ms},
+                                           {"global_ba_ms", l.global_ba_ms}});
+    if (k < loop_steps.size()) {
+      const CallTimes t = callTimesAfter(steps, loop_steps[k], 20);
+      std::printf("  track() calls: the closing one %.1f ms; the next 20 median %.1f p95 %.1f ms\n",
+                  t.at_ms, t.median_ms, t.p95_ms);
+    }
+  }
 }
 
 }  // namespace offline

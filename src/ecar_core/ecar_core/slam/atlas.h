@@ -21,8 +21,9 @@
 //
 // Thread-safety: track() of different devices may run concurrently; a merge
 // waits for every running track() and blocks new ones while it moves the map
-// (the global bundle adjustment after it runs outside, in the merging
-// device's track() call). The server's GlobalGraph and the offline runner use it.
+// (then, outside, the merging device's track() indexes the moved keyframes,
+// and the merged map's loop closer runs a global bundle adjustment on its own
+// thread). The server's GlobalGraph and the offline runner use it.
 #pragma once
 
 #include <chrono>
@@ -188,7 +189,7 @@ class Atlas {
                                       std::chrono::steady_clock::time_point start,
                                       std::vector<KeyFrameId>* moved);
   /// After a merge, without the session lock: indexes the moved keyframes in
-  /// the merged map, then bundle-adjusts it whole.
+  /// the merged map, then queues a bundle adjustment of it whole.
   void adjustMerged(const std::shared_ptr<SlamSystem>& merged,
                     const std::vector<KeyFrameId>& moved) const;
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <limits>
 #include <unordered_set>
 
 #include "ecar_core/common/timing.h"
@@ -23,6 +24,21 @@ LoopCloser::LoopCloser(Map* map, PlaceIndex* index, const SlamConfig& config)
     : map_(map), index_(index), config_(config) {}
 
 LoopCloser::~LoopCloser() { stopThread(); }
+
+namespace {
+// Queued by requestBundleAdjustAll: no keyframe ever has this id.
+const KeyFrameId kBundleAdjustAll(std::numeric_limits<uint32_t>::max());
+}  // namespace
+
+void LoopCloser::requestBundleAdjustAll() {
+  worker_.push(kBundleAdjustAll);
+  if (!worker_.threaded()) worker_.processPending();
+}
+
+std::vector<double> LoopCloser::requestedBundleAdjustmentsMs() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return requested_ba_ms_;
+}
 
 void LoopCloser::insert(KeyFrameId kf) {
   if (!config_.loops.enabled) return;
@@ -69,6 +85,12 @@ void LoopCloser::notify(const MapCorrection& correction) {
 }
 
 void LoopCloser::process(KeyFrameId kf) {
+  if (kf == kBundleAdjustAll) {
+    const double ms = bundleAdjustAll();
+    std::lock_guard<std::mutex> lock(mutex_);
+    requested_ba_ms_.push_back(ms);
+    return;
+  }
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (last_loop_keyframe_.valid() &&

@@ -66,9 +66,16 @@ class LoopCloser {
   /// closed and after each global BA, with what moved. Set before keyframes
   /// arrive; an empty function clears it.
   void setCorrectedCallback(std::function<void(const MapCorrection&)> callback);
-  /// A global bundle adjustment of the whole map now, on the caller's thread
-  /// (after a merge); returns its time (ms; 0 when nothing was adjusted).
+  /// A global bundle adjustment of the whole map now, on the caller's thread;
+  /// returns its time (ms; 0 when nothing was adjusted).
   double bundleAdjustAll();
+  /// Queues a global bundle adjustment of the whole map (after a merge): on
+  /// the closer's thread, after the keyframes queued before it, so tracking
+  /// goes on meanwhile; at once, on the caller's thread, without a thread
+  /// (synchronous mode). Its correction is announced like a loop's.
+  void requestBundleAdjustAll();
+  /// Global bundle adjustments run by requestBundleAdjustAll, with their times.
+  std::vector<double> requestedBundleAdjustmentsMs() const;
 
  private:
   struct Candidate;
@@ -84,6 +91,7 @@ class LoopCloser {
   SlamConfig config_;
   mutable std::mutex mutex_;  // guards closures_, loop_edges_, callback_, last_loop_keyframe_
   std::vector<LoopClosure> closures_;
+  std::vector<double> requested_ba_ms_;
   /// Loop edges kept for later pose graphs: (a, b, S_a_w S_b_w^-1 when closed).
   struct LoopEdge {
     KeyFrameId a, b;

@@ -63,6 +63,9 @@ TEST(AtlasTest, DevicesStartingApartMakeTheirOwnMapsWhichMerge) {
   EXPECT_EQ(atlas.mapOf(DeviceId(1)), atlas.mapOf(DeviceId(2)));
   const MergeEvent m = atlas.merges().front();
   EXPECT_GE(m.inliers, 20);
+  // The merged map was bundle-adjusted whole (queued on its loop closer).
+  EXPECT_EQ(atlas.map(atlas.mapIds().front())->loopCloser().requestedBundleAdjustmentsMs().size(),
+            atlas.merges().size());
   // One transform fits both devices' keyframes in the merged map.
   const std::shared_ptr<SlamSystem> slam = atlas.map(atlas.mapIds().front());
   std::vector<Eigen::Vector3d> est, gt;
