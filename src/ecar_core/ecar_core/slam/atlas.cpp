@@ -294,7 +294,9 @@ TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp
             found = relocalisedOverlap(current_id, *current, result, id, *s, track_in(*s), device);
           }
         }
-      } else {
+      } else if (initialised(*current)) {
+        // Lost in a map it tracked in (a map still initialising is not a
+        // place to leave: it made a new map for nothing, dropped at once).
         std::lock_guard<std::mutex> lock(mutex_);
         ++devices_[device].lost;
       }

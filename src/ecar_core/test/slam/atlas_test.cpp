@@ -136,6 +136,8 @@ TEST(AtlasTest, ADeviceBlindFor3sStartsANewMapAndIsMergedBack) {
   // Unmapped ground: a new map, within 5 uploads of seeing texture again.
   EXPECT_LE(tracked_again - textured_at, 5);
   EXPECT_NE(after, before) << "relocalised in its first map: the scene's new place was mapped";
+  // The next map id: no map was made (and dropped) while the first one initialised.
+  EXPECT_EQ(after.value, before.value + 1);
   // The walk ends in the south corridor it mapped first, looking the same way.
   ASSERT_GT(merged_at, tracked_again) << "the maps never merged";
   EXPECT_EQ(atlas.mapIds().size(), 1u);
