@@ -129,6 +129,7 @@ ecar::GlobalGraphConfig ServerConfig::graphConfig(uint32_t first_epoch) const {
   c.atlas.new_map_after_lost = new_map_after_lost;
   c.atlas.merge = merge_maps;
   c.atlas.relocalise_every = merge_probe_every;
+  c.atlas.background_merge_ba = merge_ba_in_background;
   c.devices.default_mode = syncMode();
   c.devices.default_keyframe_queue = static_cast<size_t>(keyframe_queue);
   c.devices.device_timeout = device_timeout;

@@ -60,6 +60,7 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("new_map_after_lost", &c.new_map_after_lost);
   r.read("merge_maps", &c.merge_maps);
   r.read("merge_probe_every", &c.merge_probe_every);
+  r.read("merge_ba_in_background", &c.merge_ba_in_background);
   r.read("map_file", &c.map_file);
   c.map_file = expandHome(c.map_file);
   r.read("autosave_file", &c.autosave_file);

@@ -19,19 +19,14 @@ Private params: ~scene (scene file), ~player_launch, ~frames, ~devices
 """
 
 import os
-import shutil
-import subprocess
 import sys
-import tempfile
-import threading
-import time
 import unittest
 
 import numpy as np
 import rospy
 import rostest
 from ecar_msgs.msg import DeviceFrame, LocalGraph
-from std_msgs.msg import Bool
+from ecar_sim.playback import Playback
 
 PKG = "ecar_sim"
 
@@ -74,28 +69,22 @@ class TwoDevicesTest(unittest.TestCase):
         self.player_launch = rospy.get_param("~player_launch")
         self.frames = int(rospy.get_param("~frames", 140))
         self.devices = rospy.get_param("~devices", "device_0,device_2").split(",")
-        self.tmp = tempfile.mkdtemp(prefix="ecar_two_devices_")
-        self.lock = threading.Lock()
+        self.playback = Playback(self.scene, self.player_launch, self.frames, self.devices,
+                                 prefix="ecar_two_devices_")
+        self.lock = self.playback.lock
         self.device_frames = {d: {} for d in self.devices}
         self.server = {d: {} for d in self.devices}
         self.server_maps = {d: {} for d in self.devices}
         self.graphs = {d: 0 for d in self.devices}
         self.epochs = set()
-        self.finished = {d: False for d in self.devices}
-        self.last_activity = time.time()
-        self.players = []
 
     def tearDown(self):
-        for p in self.players:
-            if p.poll() is None:
-                p.terminate()
-                p.wait()
-        shutil.rmtree(self.tmp, ignore_errors=True)
+        self.playback.close()
 
     def on_frame(self, m):
         with self.lock:
             self.device_frames[m.device_id][m.frame_index] = m
-            self.last_activity = time.time()
+            self.playback.activity()
 
     def on_graph(self, m, device):
         with self.lock:
@@ -105,50 +94,20 @@ class TwoDevicesTest(unittest.TestCase):
                 self.server[device][m.frame_index] = np.array([p.x, p.y, p.z])
                 self.server_maps[device][m.frame_index] = m.map_id
                 self.epochs.add(m.map_epoch)
-            self.last_activity = time.time()
-
-    def on_finished(self, m, device):
-        with self.lock:
-            self.finished[device] = self.finished[device] or m.data
-
-    def render(self, device):
-        out = os.path.join(self.tmp, device)
-        subprocess.run(["rosrun", "ecar_sim", "make_dataset", "--scene", self.scene, "--device",
-                        device, "--frames", str(self.frames), "--out", out, "--quiet"],
-                       check=True, stdout=subprocess.DEVNULL)
-        return out
-
-    def wait_for_server(self, timeout):
-        """Devices connect once camera_info arrives, so players start once /ecar/connect is up."""
-        try:
-            rospy.wait_for_service("/ecar/connect", timeout)
-            return True
-        except rospy.ROSException:
-            return False
+            self.playback.activity()
 
     def test_two_devices_share_one_map(self):
-        datasets = {d: self.render(d) for d in self.devices}
+        datasets = self.playback.render_all()
         for d in self.devices:
             rospy.Subscriber("/%s/device_frame" % d, DeviceFrame, self.on_frame, queue_size=500)
             rospy.Subscriber("/%s/local_graph" % d, LocalGraph, self.on_graph, callback_args=d,
                              queue_size=500)
-            rospy.Subscriber("/%s/player/finished" % d, Bool, self.on_finished, callback_args=d)
-        self.assertTrue(self.wait_for_server(60.0), "the server's /ecar/connect did not appear")
-        for d in self.devices:
-            self.players.append(subprocess.Popen(
-                ["roslaunch", self.player_launch, "dataset:=" + datasets[d], "device:=" + d,
-                 "pace_by_consumer:=true", "ack_timeout:=5.0", "output:=log"],
-                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-
-        deadline = time.time() + 300.0
-        while time.time() < deadline and not rospy.is_shutdown():
-            with self.lock:
-                if all(self.finished.values()) and time.time() - self.last_activity > 3.0:
-                    break
-            time.sleep(0.5)
-        with self.lock:
-            self.assertTrue(all(self.finished.values()), "players did not finish: %s" %
-                            self.finished)
+        try:
+            self.playback.start(datasets)
+        except rospy.ROSException:
+            self.fail("the server's /ecar/connect did not appear")
+        finished = self.playback.wait(300.0)
+        self.assertTrue(all(finished.values()), "players did not finish: %s" % finished)
 
         src, dst = [], []
         final_maps = {d: self.server_maps[d][max(self.server_maps[d])]

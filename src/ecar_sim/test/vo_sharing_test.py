@@ -18,11 +18,7 @@ Private params: ~scene, ~player_launch, ~frames.
 """
 
 import os
-import shutil
-import subprocess
 import sys
-import tempfile
-import threading
 import time
 import unittest
 
@@ -34,7 +30,7 @@ from ecar_msgs.msg import DeviceFrame, InteractionResult, LocalGraph, VirtualObj
 from ecar_sim import ground_truth
 from ecar_sim import vo_metrics as vm
 from ecar_sim.alignment import Similarity, umeyama
-from std_msgs.msg import Bool
+from ecar_sim.playback import Playback
 
 PKG = "ecar_sim"
 DEVICES = ["drawer", "receiver"]
@@ -45,23 +41,17 @@ class VoSharingTest(unittest.TestCase):
         self.scene = rospy.get_param("~scene")
         self.player_launch = rospy.get_param("~player_launch")
         self.frames = int(rospy.get_param("~frames", 150))
-        self.tmp = tempfile.mkdtemp(prefix="ecar_vo_sharing_")
-        self.lock = threading.Lock()
+        self.playback = Playback(self.scene, self.player_launch, self.frames, DEVICES,
+                                 prefix="ecar_vo_sharing_")
+        self.lock = self.playback.lock
         self.device_frames = {d: {} for d in DEVICES}
         self.server = {d: {} for d in DEVICES}
         self.graph_walls = {d: [] for d in DEVICES}
         self.objects = []
         self.results = []
-        self.finished = {d: False for d in DEVICES}
-        self.last_activity = time.time()
-        self.players = []
 
     def tearDown(self):
-        for p in self.players:
-            if p.poll() is None:
-                p.terminate()
-                p.wait()
-        shutil.rmtree(self.tmp, ignore_errors=True)
+        self.playback.close()
 
     def on_frame(self, m):
         now = time.time()
@@ -70,7 +60,7 @@ class VoSharingTest(unittest.TestCase):
             self.device_frames[m.device_id][m.frame_index] = (
                 now, m.status, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w),
                 dict(zip(m.object_ids, m.object_versions)))
-            self.last_activity = now
+            self.playback.activity()
 
     def on_graph(self, m, device):
         with self.lock:
@@ -78,7 +68,7 @@ class VoSharingTest(unittest.TestCase):
             if m.status in (LocalGraph.OK, LocalGraph.RELOCALISED):
                 p = m.pose.position
                 self.server[device][m.frame_index] = np.array([p.x, p.y, p.z])
-            self.last_activity = time.time()
+            self.playback.activity()
 
     def on_object(self, m):
         with self.lock:
@@ -88,19 +78,8 @@ class VoSharingTest(unittest.TestCase):
         with self.lock:
             self.results.append(m)
 
-    def on_finished(self, m, device):
-        with self.lock:
-            self.finished[device] = self.finished[device] or m.data
-
-    def render(self, device):
-        out = os.path.join(self.tmp, device)
-        subprocess.run(["rosrun", "ecar_sim", "make_dataset", "--scene", self.scene, "--device",
-                        device, "--frames", str(self.frames), "--out", out, "--quiet"],
-                       check=True, stdout=subprocess.DEVNULL)
-        return out
-
     def test_stroke_reaches_a_device_far_along_the_corridor(self):
-        datasets = {d: self.render(d) for d in DEVICES}
+        datasets = self.playback.render_all()
         self.assertTrue(os.path.exists(os.path.join(datasets["drawer"], "touches.txt")),
                         "the drawer's dataset has no touches.txt")
         rospy.Subscriber("/ecar/objects", VirtualObject, self.on_object, queue_size=1000)
@@ -110,22 +89,9 @@ class VoSharingTest(unittest.TestCase):
             rospy.Subscriber("/%s/device_frame" % d, DeviceFrame, self.on_frame, queue_size=500)
             rospy.Subscriber("/%s/local_graph" % d, LocalGraph, self.on_graph, callback_args=d,
                              queue_size=500)
-            rospy.Subscriber("/%s/player/finished" % d, Bool, self.on_finished, callback_args=d)
-        rospy.wait_for_service("/ecar/connect", 60.0)
-        for d in DEVICES:
-            self.players.append(subprocess.Popen(
-                ["roslaunch", self.player_launch, "dataset:=" + datasets[d], "device:=" + d,
-                 "pace_by_consumer:=true", "ack_timeout:=5.0", "output:=log"],
-                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-        deadline = time.time() + 300.0
-        while time.time() < deadline and not rospy.is_shutdown():
-            with self.lock:
-                if all(self.finished.values()) and time.time() - self.last_activity > 3.0:
-                    break
-            time.sleep(0.5)
-        with self.lock:
-            self.assertTrue(all(self.finished.values()), "players did not finish: %s" %
-                            self.finished)
+        self.playback.start(datasets)
+        finished = self.playback.wait(300.0)
+        self.assertTrue(all(finished.values()), "players did not finish: %s" % finished)
 
         # The touches became VOs, all accepted.
         rejected = [(r.request_id, r.reason) for r in self.results if not r.accepted]

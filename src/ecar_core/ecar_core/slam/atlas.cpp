@@ -449,11 +449,15 @@ void Atlas::adjustMerged(const std::shared_ptr<SlamSystem>& merged,
   // recognition and relocalisation could have used them sooner.
   merged->indexKeyFrames(moved);
   // The whole merged map adjusted at once (as after a loop): the seam holds
-  // only the points seen from both sides so far. On the merged map's loop
-  // closer's thread: the merging device's upload is answered meanwhile (it
-  // took this upload 0.1-1.4 s on the small ring when it ran here). The
-  // correction reaches what hangs on the map through the closer's callback.
-  if (config_.loops.global_ba) merged->loopCloser().requestBundleAdjustAll();
+  // only the points seen from both sides so far. Here, or on the merged map's
+  // loop-closer thread (AtlasConfig::background_merge_ba). The correction
+  // reaches what hangs on the map through the closer's callback.
+  if (!config_.loops.global_ba) return;
+  if (atlas_.background_merge_ba) {
+    merged->loopCloser().requestBundleAdjustAll();
+  } else {
+    merged->loopCloser().bundleAdjustAll();
+  }
 }
 
 std::shared_ptr<SlamSystem> Atlas::doMerge(const MergeCandidate& c,

@@ -21,9 +21,9 @@
 //
 // Thread-safety: track() of different devices may run concurrently; a merge
 // waits for every running track() and blocks new ones while it moves the map
-// (then, outside, the merging device's track() indexes the moved keyframes,
-// and the merged map's loop closer runs a global bundle adjustment on its own
-// thread). The server's GlobalGraph and the offline runner use it.
+// (then, outside, the merging device's track() indexes the moved keyframes
+// and bundle-adjusts the merged map whole, or queues that on the merged map's
+// loop-closer thread: background_merge_ba). The server's GlobalGraph and the offline runner use it.
 #pragma once
 
 #include <chrono>
@@ -57,6 +57,14 @@ struct AtlasConfig {
   /// the similarity (at least relocalise_min_inliers inliers).
   int relocalise_every = 2;
   int relocalise_min_inliers = 20;
+  /// Where the global bundle adjustment after a merge runs. false: inside the
+  /// merging upload's track() (that upload waits 0.9-1.4 s on the small ring,
+  /// every later one tracks in the adjusted map). true: on the merged map's
+  /// loop-closer thread (the merging upload takes about 0.2 s, but the next
+  /// uploads, for 1-2 s, track in the map before its adjustment lands; in
+  /// atlas_merge.test walker_b then drew the line up to 23 cm off on its first
+  /// graphs after the merge, against about 7-15 cm).
+  bool background_merge_ba = false;
   /// Ids of map k start at (k - 1) * id_range + 1.
   uint32_t id_range = 10000000;
 
@@ -189,7 +197,7 @@ class Atlas {
                                       std::chrono::steady_clock::time_point start,
                                       std::vector<KeyFrameId>* moved);
   /// After a merge, without the session lock: indexes the moved keyframes in
-  /// the merged map, then queues a bundle adjustment of it whole.
+  /// the merged map, then bundle-adjusts it whole (or queues that).
   void adjustMerged(const std::shared_ptr<SlamSystem>& merged,
                     const std::vector<KeyFrameId>& moved) const;
 

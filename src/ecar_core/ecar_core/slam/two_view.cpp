@@ -467,7 +467,7 @@ TwoViewResult reconstructTwoView(const std::vector<Eigen::Vector2d>& pts1,
   };
   result.used_homography = s_h / (s_h + s_f) > config.homography_ratio;
   Selected selected = select(result.used_homography);
-  if (selected.ambiguous && result.used_homography) {
+  if (selected.ambiguous && result.used_homography && config.fundamental_breaks_ties) {
     // A plane's two decompositions explain the views equally: the scene is
     // not one plane (walls and floor) but the baseline is still short. The
     // fundamental matrix's motion decides when it is itself unambiguous.

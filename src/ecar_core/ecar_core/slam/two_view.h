@@ -35,6 +35,9 @@ struct TwoViewConfig {
   /// The best motion hypothesis must triangulate clearly more points than the
   /// second best (ambiguity check), by this factor.
   double ambiguity_ratio = 0.75;
+  /// When the homography's decompositions tie, let the fundamental matrix's
+  /// motion decide (if it is itself unambiguous) instead of refusing.
+  bool fundamental_breaks_ties = true;
 };
 
 struct TwoViewResult {
