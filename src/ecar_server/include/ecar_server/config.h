@@ -79,7 +79,7 @@ struct ServerConfig {
   /// thread (true; the merging upload is answered at once, the next ones track
   /// in the merged map before its adjustment lands) or inside the merging
   /// upload (false: that upload waits for it, 0.9-1.4 s on the small ring).
-  bool merge_ba_in_background = false;
+  bool merge_ba_in_background = true;
   /// Devices' cameras within this fraction (fx, fy, cx, cy; distortion
   /// coefficients absolutely) count as one camera. Any camera may connect.
   double camera_tolerance = 0.005;
