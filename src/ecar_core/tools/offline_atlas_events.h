@@ -235,15 +235,30 @@ inline void reportAtlasEvents(const ecar::Atlas& atlas, const ecar::SlamSystem* 
     const int upload = k < merge_found_by.size() ? merge_found_by[k].second : -1;
     std::printf(
         "maps merged: %s upload %d (keyframe %u) found map %u in map %u (keyframe %u), %d "
-        "inliers, scale %.4f; %zu keyframes moved, %zu points fused, %.1f ms\n",
+        "inliers, scale %.4f; %zu keyframes moved, %zu points fused, seam refit %s (%d of %d "
+        "reprojections, %.2f -> %.2f px, %.2f deg), %.1f ms\n",
         d < runs.size() ? runs[d].name.c_str() : "?", upload, m.query.value, m.from.value,
-        m.into.value, m.match.value, m.inliers, m.scale, m.keyframes_moved, m.points_fused, m.ms);
-    nlohmann::json entry = {
-        {"upload", upload},     {"device", d < runs.size() ? runs[d].name : "?"},
-        {"inliers", m.inliers}, {"ms", m.ms},
-        {"into", m.into.value}, {"from", m.from.value},
-        {"scale", m.scale},     {"overlap_device", nullptr},
-        {"overlap_upload", -1}, {"delay_uploads", -1}};
+        m.into.value, m.match.value, m.inliers, m.scale, m.keyframes_moved, m.points_fused,
+        m.refit.applied ? "applied" : "not applied", m.refit.inliers, m.refit.observations,
+        m.refit.rms_before_px, m.refit.rms_after_px,
+        ecar::rotationAngle(m.refit.D.R) * 180.0 / M_PI, m.ms);
+    nlohmann::json entry = {{"upload", upload},
+                            {"device", d < runs.size() ? runs[d].name : "?"},
+                            {"inliers", m.inliers},
+                            {"ms", m.ms},
+                            {"into", m.into.value},
+                            {"from", m.from.value},
+                            {"scale", m.scale},
+                            {"overlap_device", nullptr},
+                            {"refit",
+                             {{"applied", m.refit.applied},
+                              {"inliers", m.refit.inliers},
+                              {"observations", m.refit.observations},
+                              {"rms_before_px", m.refit.rms_before_px},
+                              {"rms_after_px", m.refit.rms_after_px},
+                              {"rotation_deg", ecar::rotationAngle(m.refit.D.R) * 180.0 / M_PI}}},
+                            {"overlap_upload", -1},
+                            {"delay_uploads", -1}};
     if (k < overlaps.size() && overlaps[k].step >= 0) {
       const Step& o = steps[static_cast<size_t>(overlaps[k].step)];
       entry["overlap_device"] = runs[o.device].name;

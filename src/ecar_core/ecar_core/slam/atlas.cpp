@@ -483,7 +483,7 @@ std::shared_ptr<SlamSystem> Atlas::doMerge(const MergeCandidate& c,
   const bool into_b = size_b >= size_a;
   const std::shared_ptr<SlamSystem> into = into_b ? b : a, from = into_b ? a : b;
   const MapId into_id = into_b ? c.b : c.a, from_id = into_b ? c.a : c.b;
-  const Sim3 S = into_b ? c.S : c.S.inverse();
+  Sim3 S = into_b ? c.S : c.S.inverse();
   std::vector<std::pair<MapPointId, MapPointId>> duplicates = c.duplicates;
   if (!into_b) {
     for (auto& d : duplicates) std::swap(d.first, d.second);
@@ -491,9 +491,11 @@ std::shared_ptr<SlamSystem> Atlas::doMerge(const MergeCandidate& c,
   from->mapper().stopThread();
   from->loopCloser().stopThread();
   MergeResult r;
+  bool metric = false;
   {
     auto lock_into = into->map().writeLock();
     auto lock_from = from->map().writeLock();
+    metric = into->map().metric() && from->map().metric();
     r = mergeMaps(&into->map(), &from->map(), S, duplicates);
   }
   // The seam welded: the points around each side fused into the keyframes
@@ -502,11 +504,17 @@ std::shared_ptr<SlamSystem> Atlas::doMerge(const MergeCandidate& c,
   if (c.query.valid() && c.match.valid()) {
     r.points_fused += static_cast<size_t>(into->mapper().weld(c.query, c.match, 10));
   }
+  // The similarity refitted on the welded seam: hundreds of reprojections
+  // across it instead of the few dozen 3D positions that verified it.
+  MergeEvent event;
+  {
+    auto lock = into->map().writeLock();
+    event.refit = refitMerge(&into->map(), &r, &S, metric);
+  }
   // The seam is mapped again: new points across it, fusion, local BA.
   if (c.query.valid()) into->mapper().insert(c.query);
   if (c.match.valid()) into->mapper().insert(c.match);
   if (config_.synchronous_mapping) into->mapper().processPending();
-  MergeEvent event;
   event.into = into_id;
   event.from = from_id;
   event.query = c.query;

@@ -39,6 +39,7 @@
 #include "ecar_core/common/geometry.h"
 #include "ecar_core/common/types.h"
 #include "ecar_core/slam/map_correction.h"
+#include "ecar_core/slam/seam_refit.h"
 #include "ecar_core/slam/slam_system.h"
 
 namespace ecar {
@@ -82,6 +83,9 @@ struct MergeEvent {
   double scale = 1.0;  ///< of the similarity
   double ms = 0.0;     ///< verification and merge
   size_t keyframes_moved = 0, points_fused = 0;
+  /// The similarity refitted on the welded seam's reprojections (S includes
+  /// refit.D when refit.applied).
+  SeamRefit refit;
   /// The similarity from the merged map's world to the kept map's.
   Sim3 S;
   /// Every keyframe that moved, with S (its grid links are re-cast).

@@ -42,6 +42,7 @@ MergeResult mergeMaps(Map* into, Map* from, const Sim3& S,
   }
   out.keyframes_moved = keyframes.size();
   out.points_moved = points.size();
+  out.moved_points = points;
   out.correction.points_moved = points.size();
   into->setCounters(KeyFrameId(next_keyframe), MapPointId(next_point), into->epoch());
   from->clear();
@@ -74,6 +75,19 @@ MergeResult mergeMaps(Map* into, Map* from, const Sim3& S,
   out.correction.revision = into->revision();
   out.correction.epoch = into->epoch();
   return out;
+}
+
+SeamRefit refitMerge(Map* map, MergeResult* r, Sim3* S, bool fix_scale) {
+  std::unordered_set<KeyFrameId> keyframes;
+  for (const auto& kv : r->correction.keyframes) keyframes.insert(kv.first);
+  const std::unordered_set<MapPointId> points(r->moved_points.begin(), r->moved_points.end());
+  const SeamRefit refit = refitSeam(map, keyframes, points, fix_scale);
+  if (refit.applied) {
+    *S = refit.D * *S;
+    for (auto& kv : r->correction.keyframes) kv.second = *S;
+    r->correction.revision = map->revision();
+  }
+  return refit;
 }
 
 }  // namespace ecar

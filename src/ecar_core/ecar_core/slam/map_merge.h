@@ -17,6 +17,7 @@
 #include "ecar_core/common/types.h"
 #include "ecar_core/slam/map.h"
 #include "ecar_core/slam/map_correction.h"
+#include "ecar_core/slam/seam_refit.h"
 
 namespace ecar {
 
@@ -25,6 +26,8 @@ struct MergeResult {
   /// The keyframes of the seam: those holding a fused point (a bundle
   /// adjustment around them settles the merge).
   std::vector<KeyFrameId> seam;
+  /// The points that came from `from` (some fused away since).
+  std::vector<MapPointId> moved_points;
   /// Every moved keyframe with the similarity (from's world -> into's world).
   MapCorrection correction;
 };
@@ -44,5 +47,11 @@ struct MergeResult {
 /// (nothing moved then).
 MergeResult mergeMaps(Map* into, Map* from, const Sim3& S,
                       const std::vector<std::pair<MapPointId, MapPointId>>& duplicates);
+
+/// After mergeMaps (and the seam's welding): refits the merge's similarity on
+/// the reprojections across the seam (refitSeam over r's moved keyframes and
+/// points) and, when applied, composes it into *S and r's correction. Hold the
+/// map's write lock.
+SeamRefit refitMerge(Map* map, MergeResult* r, Sim3* S, bool fix_scale);
 
 }  // namespace ecar

@@ -11,6 +11,7 @@
 #include "ecar_core/sim/motion.h"
 #include "ecar_core/sim/renderer.h"
 #include "ecar_core/slam/pose_graph.h"
+#include "ecar_core/slam/seam_refit.h"
 #include "ecar_core/slam/slam_system.h"
 
 namespace ecar {
@@ -122,6 +123,118 @@ TEST(MapMergeTest, TwoMapsOfOnePlaceBecomeOne) {
     EXPECT_NE(std::string(e.what()).find("in both maps"), std::string::npos) << e.what();
   }
   EXPECT_EQ(clash->numKeyFrames(), 2 * keyframes);
+}
+
+// A merge through a slightly wrong similarity (what one view's few dozen
+// matches give), then the seam refit: the reprojections across the seam bring
+// the moved map back onto its twin.
+struct PerturbedMerge {
+  std::unique_ptr<SlamSystem> slam = corridorMap();
+  std::unique_ptr<Map> b;
+  MergeResult r;
+  Sim3 S, S_true;  ///< the merge's similarity (refined by refit()), the true one
+  static constexpr uint32_t kOffset = 100000;
+
+  // P: the error of the merge's similarity (applied after the true one).
+  explicit PerturbedMerge(const Sim3& P, size_t duplicates_wanted = 40) {
+    Map& a = slam->map();
+    auto lock = a.writeLock();
+    Sim3 T;
+    T.scale = 1.7;
+    T.R = expSO3(Eigen::Vector3d(0.2, -0.1, 1.3));
+    T.t = Eigen::Vector3d(4.0, -2.0, 0.5);
+    b = copyOf(a, kOffset, T);
+    // Place recognition's few dozen matches: every 5th point.
+    std::vector<std::pair<MapPointId, MapPointId>> duplicates;
+    const std::vector<MapPointId> ids = a.pointIds();
+    for (size_t i = 0; i < ids.size() && duplicates.size() < duplicates_wanted; i += 5) {
+      duplicates.emplace_back(MapPointId(ids[i].value + kOffset), ids[i]);
+    }
+    S_true = T.inverse();
+    S = P * S_true;
+    r = mergeMaps(&a, b.get(), S, duplicates);
+  }
+
+  SeamRefit refit(bool fix_scale) {
+    Map& a = slam->map();
+    auto lock = a.writeLock();
+    return refitMerge(&a, &r, &S, fix_scale);
+  }
+
+  // Largest distance (m) and angle (deg) between a moved keyframe and its twin.
+  std::pair<double, double> twinError() {
+    Map& a = slam->map();
+    auto lock = a.readLock();
+    double distance = 0.0, angle = 0.0;
+    for (const KeyFrameId id : a.keyframeIds()) {
+      if (id.value >= kOffset) continue;
+      const KeyFrame* original = a.keyframe(id);
+      const KeyFrame* moved = a.keyframe(KeyFrameId(id.value + kOffset));
+      if (!moved) continue;
+      distance = std::max(distance, (moved->center() - original->center()).norm());
+      angle = std::max(angle,
+                       rotationAngle(moved->T_c_w.linear().transpose() * original->T_c_w.linear()) *
+                           180.0 / M_PI);
+    }
+    return {distance, angle};
+  }
+};
+
+Sim3 perturbation(double deg, const Eigen::Vector3d& t, double scale) {
+  Sim3 P;
+  P.R = expSO3(Eigen::Vector3d(0.3, 0.2, 0.9).normalized() * deg * M_PI / 180.0);
+  P.t = t;
+  P.scale = scale;
+  return P;
+}
+
+TEST(SeamRefitTest, ReprojectionsAcrossTheSeamCorrectTheMergesSimilarity) {
+  PerturbedMerge m(perturbation(1.0, Eigen::Vector3d(0.05, -0.03, 0.02), 1.01));
+  const auto [before_m, before_deg] = m.twinError();
+  EXPECT_GT(before_deg, 0.9);
+  const SeamRefit r = m.refit(false);
+  ASSERT_TRUE(r.applied) << r.inliers << " of " << r.observations << " inliers, " << r.rms_before_px
+                         << " -> " << r.rms_after_px << " px";
+  EXPECT_GE(r.observations, 100);
+  // At the true similarity the residuals are the map's own (about 0.9 px).
+  EXPECT_LT(r.rms_after_px, 1.2);
+  EXPECT_GT(r.rms_before_px, 2.0 * r.rms_after_px);
+  const auto [after_m, after_deg] = m.twinError();
+  EXPECT_LT(after_m, 0.001) << before_m;  // 9 cm and 1 degree before
+  EXPECT_LT(after_deg, 0.01) << before_deg;
+  // The merge's similarity and its correction are the true ones now.
+  EXPECT_LT(rotationAngle(m.S.R.transpose() * m.S_true.R) * 180.0 / M_PI, 0.01);
+  EXPECT_NEAR(m.S.scale / m.S_true.scale, 1.0, 1e-4);
+  EXPECT_NEAR(m.r.correction.of(KeyFrameId(PerturbedMerge::kOffset + 1)).scale, m.S.scale, 1e-12);
+  std::printf("twins %.4f m, %.3f deg apart; after the refit %.4f m, %.3f deg\n", before_m,
+              before_deg, after_m, after_deg);
+  EXPECT_EQ(m.slam->map().checkConsistency(), "");
+}
+
+TEST(SeamRefitTest, AMetricMergeKeepsItsScale) {
+  // Both maps metric: D is a rotation and translation; the scale error stays.
+  PerturbedMerge m(perturbation(0.8, Eigen::Vector3d(0.04, 0.0, -0.02), 1.0));
+  const SeamRefit r = m.refit(true);
+  ASSERT_TRUE(r.applied);
+  EXPECT_DOUBLE_EQ(r.D.scale, 1.0);
+  EXPECT_LT(m.twinError().second, 0.01);
+}
+
+TEST(SeamRefitTest, NotAppliedWithoutASeamOrWhenTheCorrectionIsLarge) {
+  {
+    // No duplicates: nothing of one side is seen by the other.
+    PerturbedMerge m(perturbation(1.0, Eigen::Vector3d::Zero(), 1.0), 0);
+    const SeamRefit r = m.refit(false);
+    EXPECT_FALSE(r.applied);
+    EXPECT_EQ(r.observations, 0);
+  }
+  {
+    // 12 degrees off is not a refinement of a verified similarity.
+    PerturbedMerge m(perturbation(12.0, Eigen::Vector3d(0.5, 0.0, 0.0), 1.0));
+    const auto before = m.twinError();
+    EXPECT_FALSE(m.refit(false).applied);
+    EXPECT_DOUBLE_EQ(m.twinError().first, before.first);  // nothing moved
+  }
 }
 
 }  // namespace
