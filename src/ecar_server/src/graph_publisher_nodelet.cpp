@@ -22,6 +22,7 @@
 #include "ecar_bridge/server_pipeline.h"
 #include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
+#include "ecar_core/slam/atlas.h"
 #include "ecar_core/sync/local_graph_composer.h"
 #include "ecar_server/GraphPublisherConfig.h"
 #include "ecar_server/ros_params.h"
@@ -133,11 +134,20 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
       return;
     }
     const std::optional<ecar::DeviceInfo> info = graph_->devices().device(device);
+    if (!info) return;  // disconnected meanwhile
+    // Its map merged into another since it was aligned (another device's
+    // merge): answered in the merged map, as the device's next upload would be.
+    if (frame.map.valid() && !graph_->map(frame.map)) {
+      if (const std::shared_ptr<ecar::Atlas> atlas = graph_->atlas()) atlas->toLiveMap(&frame);
+    }
     // Not tracked: any map answers the epoch check (the graph has no points).
     const std::shared_ptr<ecar::SlamSystem> slam =
         graph_->map(frame.map.valid() ? frame.map : graph_->largestMap());
-    if (!info) return;  // disconnected meanwhile
-    if (!slam) return;  // its map merged away meanwhile (the device's next upload answers)
+    if (!slam) {
+      NODELET_WARN_THROTTLE(2.0, "device %s: tracked frame %u: map %u is gone: not answered",
+                            device.c_str(), frame_msg.frame_index, frame.map.value);
+      return;
+    }
     const std::shared_ptr<const ecar::LocalGraphComposer> composer = this->composer();
     ecar::ComposerInput in;
     in.device = device;

@@ -148,6 +148,13 @@ class Atlas {
   /// world of the map it was merged into (through every later merge), and
   /// that map. Identity and `id` itself for a live map.
   std::pair<MapId, Sim3> finalFrameOf(MapId id) const;
+  /// A result aligned in a map that has merged into another since (by this
+  /// upload's own merge, or another device's meanwhile): its pose and tracked
+  /// points move into the live map's coordinates (finalFrameOf) and its map id
+  /// becomes the live map's. The point ids stay (a merge keeps ids; fused
+  /// ones are gone from the map and are skipped by the graph). Returns false
+  /// (nothing changed) when r's map is live or invalid.
+  bool toLiveMap(TrackResult* r) const;
   /// Every loop closed in any map.
   std::vector<LoopClosure> loopClosures() const;
   /// Stops every map's threads after finishing their queues.

@@ -6,6 +6,8 @@
 // once, merged back when it sees its first map's ground again.
 #include "ecar_core/slam/atlas.h"
 
+#include <optional>
+
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
@@ -32,6 +34,9 @@ TEST(AtlasTest, DevicesStartingApartMakeTheirOwnMapsWhichMerge) {
   int first_tracked[2] = {-1, -1};
   size_t most_maps = 0;
   int merged_at = -1;
+  int answered_in_a_gone_map = 0;
+  // The pose of the upload whose merge moved its own map (answered in the merged map).
+  std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> merging_pose;  // (estimate, truth)
   const size_t uploads = std::max(motion[0].size(), motion[1].size()) / 4;
   for (size_t u = 0; u < uploads; ++u) {
     for (size_t d = 0; d < 2; ++d) {
@@ -48,10 +53,18 @@ TEST(AtlasTest, DevicesStartingApartMakeTheirOwnMapsWhichMerge) {
       if (t.state == TrackingState::kOk && first_tracked[d] < 0)
         first_tracked[d] = static_cast<int>(u);
       most_maps = std::max(most_maps, atlas.mapIds().size());
-      if (merged_at < 0 && !atlas.merges().empty()) merged_at = static_cast<int>(u);
+      EXPECT_EQ(t.map, map);
+      if (map.valid() && !atlas.map(map)) ++answered_in_a_gone_map;
+      if (merged_at < 0 && !atlas.merges().empty()) {
+        merged_at = static_cast<int>(u);
+        if (t.state == TrackingState::kOk && atlas.merges().front().device == DeviceId(d + 1)) {
+          merging_pose.emplace(t.T_w_c.translation(), motion[d][i].T_w_c.translation());
+        }
+      }
     }
   }
   atlas.finish();
+  EXPECT_EQ(answered_in_a_gone_map, 0) << "uploads answered in a map merged away";
   // Both tracked as soon as they move (0.5 s standing: about 4 uploads), each in its own map.
   EXPECT_GE(most_maps, 2u);
   EXPECT_GE(first_tracked[0], 0);
@@ -90,6 +103,10 @@ TEST(AtlasTest, DevicesStartingApartMakeTheirOwnMapsWhichMerge) {
       "%.0f ms); keyframe ATE after the merge %.4f m\n",
       most_maps, first_tracked[0], first_tracked[1], merged_at, m.inliers, m.ms, ate);
   EXPECT_LT(ate, 0.08);
+  // The merging upload was answered where it is in the merged map.
+  ASSERT_TRUE(merging_pose.has_value());
+  EXPECT_LT((S * merging_pose->first - merging_pose->second).norm(), 0.15)
+      << merging_pose->first.transpose();
 }
 
 TEST(AtlasTest, ADeviceBlindFor3sStartsANewMapAndIsMergedBack) {
