@@ -7,14 +7,11 @@
 #include "ecar_core/common/error.h"
 
 namespace ecar {
-namespace {
 
-bool initialised(const SlamSystem& slam) {
+bool Atlas::initialised(const SlamSystem& slam) {
   auto lock = slam.map().readLock();
   return slam.map().initialized();
 }
-
-}  // namespace
 
 void AtlasConfig::validate() const {
   const auto fail = [](const std::string& key, const std::string& why) {

@@ -161,6 +161,7 @@ class Atlas {
   void finish();
 
  private:
+  static bool initialised(const SlamSystem& slam);  ///< its map has keyframes
   struct Device {
     MapId current;   ///< the map it tracks in
     MapId fresh;     ///< a map of its own being initialised

@@ -13,14 +13,6 @@
 #include "ecar_core/slam/sim3_solver.h"
 
 namespace ecar {
-namespace {
-
-bool initialised(const SlamSystem& slam) {
-  auto lock = slam.map().readLock();
-  return slam.map().initialized();
-}
-
-}  // namespace
 
 std::optional<Atlas::MergeCandidate> Atlas::relocalisedOverlap(MapId a_id, const SlamSystem& a,
                                                                const TrackResult& in_a, MapId b_id,
