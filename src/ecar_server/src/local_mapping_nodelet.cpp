@@ -85,10 +85,10 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
           l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.points_fused);
     }
     NODELET_INFO(
-        "map %u corrected: %zu keyframes, %zu points, %zu planes, %zu objects moved "
-        "(grid links of %zu keyframes re-cast, %zu cells) in %.1f ms",
+        "map %u corrected: %zu keyframes, %zu points, %zu planes, %zu objects moved, %zu "
+        "planes fused or emptied (grid links of %zu keyframes re-cast, %zu cells) in %.1f ms",
         report.map.value, report.keyframes, report.points, report.planes, report.objects,
-        report.keyframes_recast, report.keyframe_cells, report.milliseconds);
+        report.planes_removed, report.keyframes_recast, report.keyframe_cells, report.milliseconds);
   }
 
  private:

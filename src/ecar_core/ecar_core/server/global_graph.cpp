@@ -295,6 +295,19 @@ MapCorrectionReport GlobalGraph::applyMapCorrection(MapId map_id, const MapCorre
           }
           return std::nullopt;
         });
+    {
+      // The planes follow their points' adjusted positions exactly, and
+      // planes that are one now (a merge's two floors) become one.
+      auto lock = slam->map().readLock();
+      report.planes_removed =
+          planes_
+              .refit(map_id,
+                     [&](MapPointId id) -> std::optional<Eigen::Vector3d> {
+                       const MapPoint* p = slam->map().point(id);
+                       return p ? std::optional<Eigen::Vector3d>(p->p_w) : std::nullopt;
+                     })
+              .removed.size();
+    }
     const double reach2 = config_.vo_map_margin * config_.vo_map_margin;
     const std::vector<ObjectId> objects = vos_->transformObjects(
         [&](const VirtualObject& vo) -> std::optional<Sim3> {

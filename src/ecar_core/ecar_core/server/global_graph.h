@@ -84,6 +84,7 @@ struct GlobalGraphConfig {
 struct MapCorrectionReport {
   MapId map;
   size_t keyframes = 0, points = 0, planes = 0, objects = 0;
+  size_t planes_removed = 0;  ///< planes fused into another or left without points (refit)
   size_t keyframes_recast = 0, keyframe_cells = 0;  ///< grid links re-made (moved > 1/4 cell)
   double milliseconds = 0.0;
 };

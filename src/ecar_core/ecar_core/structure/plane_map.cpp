@@ -98,6 +98,12 @@ bool PlaneMap::matches(const Entry& entry, const std::vector<Eigen::Vector3d>& p
 
 void PlaneMap::reestimate(Entry* entry, const Eigen::Vector3d& camera_center_w,
                           const Eigen::Vector3d& up_w) {
+  refitGeometry(entry);
+  Plane& plane = entry->plane;
+  plane.label = labelPlane(plane.normal, plane.offset, camera_center_w, up_w, config_);
+}
+
+void PlaneMap::refitGeometry(Entry* entry) {
   Plane& plane = entry->plane;
   std::vector<Eigen::Vector3d> pts;
   auto fit = [&]() {
@@ -135,7 +141,6 @@ void PlaneMap::reestimate(Entry* entry, const Eigen::Vector3d& camera_center_w,
   fit();
   if (dropFar(keep)) fit();
   plane.boundary = planeHull(pts, plane.normal, plane.offset);
-  plane.label = labelPlane(plane.normal, plane.offset, camera_center_w, up_w, config_);
   plane.num_points = static_cast<uint32_t>(entry->points.size());
   ++plane.version;
 }
@@ -382,6 +387,67 @@ size_t PlaneMap::moveMap(MapId from, MapId into, const Sim3& S) {
   }
   if (moved > 0) ++revision_;
   return moved;
+}
+
+PlaneMapUpdate PlaneMap::refit(
+    MapId map, const std::function<std::optional<Eigen::Vector3d>(MapPointId)>& position) {
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  PlaneMapUpdate update;
+  const auto erase = [&](PlaneId id) {
+    Entry& e = planes_.at(id);
+    for (const auto& kv : e.points) point_owner_.erase(kv.first);
+    for (const KeyFrameId k : e.keyframes) {
+      auto& list = keyframe_planes_[k];
+      list.erase(std::remove(list.begin(), list.end(), id), list.end());
+    }
+    planes_.erase(id);
+    update.removed.push_back(id);
+  };
+  std::vector<PlaneId> ids;
+  for (const auto& [id, entry] : planes_) {
+    if (entry.plane.map == map) ids.push_back(id);
+  }
+  std::sort(ids.begin(), ids.end());
+  for (const PlaneId id : ids) {
+    Entry& e = planes_.at(id);
+    for (auto& [pid, p_w] : e.points) {
+      const std::optional<Eigen::Vector3d> p = position(pid);
+      if (p && p->allFinite()) p_w = *p;
+    }
+    refitGeometry(&e);
+    if (e.points.size() < 3) erase(id);
+  }
+  // Planes that are one physical plane now: the lower id absorbs the higher.
+  bool merged = true;
+  while (merged) {
+    merged = false;
+    ids.erase(
+        std::remove_if(ids.begin(), ids.end(), [&](PlaneId id) { return !planes_.count(id); }),
+        ids.end());
+    for (size_t a = 0; a < ids.size() && !merged; ++a) {
+      for (size_t b = a + 1; b < ids.size() && !merged; ++b) {
+        Entry& keep = planes_.at(ids[a]);
+        Entry& gone = planes_.at(ids[b]);
+        std::vector<Eigen::Vector3d> pts;
+        for (const auto& kv : gone.points) pts.push_back(kv.second);
+        double md = 0.0;
+        if (!matches(keep, pts, gone.plane.boundary, gone.plane.normal, &md)) continue;
+        absorb(&keep, &gone);
+        gone.points.clear();  // now keep's (absorb moved the owners)
+        gone.keyframes.clear();
+        planes_.erase(ids[b]);
+        update.removed.push_back(ids[b]);
+        refitGeometry(&keep);
+        merged = true;
+      }
+    }
+  }
+  for (const PlaneId id : ids) {
+    if (planes_.count(id)) update.updated.push_back(id);
+  }
+  std::sort(update.removed.begin(), update.removed.end());
+  if (!ids.empty() || !update.removed.empty()) ++revision_;
+  return update;
 }
 
 void PlaneMap::transform(Entry* entry, const Sim3& S) {

@@ -92,6 +92,19 @@ class PlaneMap {
   /// Moves the planes of map `from` into map `into` through S (a merge):
   /// transformed as above, version + 1. Returns how many moved.
   size_t moveMap(MapId from, MapId into, const Sim3& S);
+  /// After a map was bundle-adjusted (a loop, a merge): the planes of `map`
+  /// take their points' adjusted positions (`position`; nullopt: not in the
+  /// SLAM map any more (culled, fused), the point keeps its stored position)
+  /// and are refitted (labels kept; points that ended far from the plane
+  /// leave it, and a plane left with fewer than 3 points goes), then planes
+  /// of the map that now match (as in integrate) become one, the lower id
+  /// surviving. Moving planes by their keyframes'
+  /// corrections alone left a merged map's planes where the smaller map had
+  /// estimated them (a second floor 8-10 cm off the first in the demo).
+  /// Returns the updated and removed planes. Hold the SLAM map's read lock
+  /// for `position`.
+  PlaneMapUpdate refit(MapId map,
+                       const std::function<std::optional<Eigen::Vector3d>(MapPointId)>& position);
 
   /// Every plane with its points and links, by increasing id.
   std::vector<PlaneRecord> save() const;
@@ -118,6 +131,8 @@ class PlaneMap {
                double* median_distance) const;
   void reestimate(Entry* entry, const Eigen::Vector3d& camera_center_w,
                   const Eigen::Vector3d& up_w);
+  /// reestimate without the label: fit, drop far points, hull, version + 1.
+  void refitGeometry(Entry* entry);
   void absorb(Entry* into, Entry* from);
   /// Moves one plane through S (normal, offset, boundary, points; version + 1).
   void transform(Entry* entry, const Sim3& S);

@@ -326,6 +326,54 @@ TEST(PlaneMapTest, ParallelPlaneIsNotMerged) {
   EXPECT_EQ(map.plane(u2.created[0])->label, PlaneLabel::kFloor);
 }
 
+TEST(PlaneMapTest, RefitTakesAdjustedPointsAndFusesPlanesThatBecameOne) {
+  // A merged map: the floor of the larger map, and the floor the smaller map
+  // had estimated 12 cm high (too far to be merged as one plane); its points'
+  // positions after the bundle adjustment lie on the floor. And a plane whose
+  // points are no longer in the SLAM map (culled): it stays where it was.
+  const PlaneConfig config;
+  PlaneSegmenter segmenter(config);
+  PlaneMap map(config);
+  const Cloud low = floorCloud(0.0, 4.0, 0.0, 300, 1, 1);
+  const Cloud high = floorCloud(3.0, 7.0, 0.12, 240, 1000, 2);
+  const auto a = addKeyFrame(&map, segmenter, 1, low, Eigen::Vector3d(1, 1.2, 1.5));
+  const auto b = addKeyFrame(&map, segmenter, 2, high, Eigen::Vector3d(5, 1.2, 1.5));
+  const auto c = addKeyFrame(&map, segmenter, 3, floorCloud(0.0, 3.0, 1.0, 200, 5000, 3),
+                             Eigen::Vector3d(1, 1.2, 2.5));
+  ASSERT_EQ(a.created.size(), 1u);
+  ASSERT_EQ(b.created.size(), 1u);
+  ASSERT_EQ(c.created.size(), 1u);
+  ASSERT_EQ(map.size(), 3u);
+  const PlaneId floor = a.created[0], second = b.created[0], kept = c.created[0];
+  std::map<uint32_t, Eigen::Vector3d> adjusted;  // none of the third plane's points
+  for (const auto& p : low.points) adjusted[p.id.value] = p.p_w;
+  for (const auto& p : high.points) adjusted[p.id.value] = {p.p_w.x(), p.p_w.y(), 0.0};
+  const uint32_t version = map.plane(floor)->version;
+  const PlaneMapUpdate u =
+      map.refit(map.plane(floor)->map, [&](MapPointId id) -> std::optional<Eigen::Vector3d> {
+        const auto it = adjusted.find(id.value);
+        return it != adjusted.end() ? std::optional<Eigen::Vector3d>(it->second) : std::nullopt;
+      });
+  EXPECT_EQ(u.removed, std::vector<PlaneId>{second});
+  EXPECT_EQ(u.updated, (std::vector<PlaneId>{floor, kept}));
+  ASSERT_EQ(map.size(), 2u);
+  EXPECT_NEAR(map.plane(kept)->offset, -1.0, 0.005);
+  EXPECT_EQ(map.plane(kept)->num_points, 200u);
+  const Plane p = *map.plane(floor);
+  EXPECT_GT(p.version, version);
+  EXPECT_EQ(p.num_points, 540u);
+  EXPECT_EQ(p.label, PlaneLabel::kFloor);
+  EXPECT_NEAR(p.offset, 0.0, 0.005);
+  EXPECT_EQ(map.planeOfPoint(MapPointId(1000)), floor);
+  EXPECT_EQ(map.planeOfPoint(MapPointId(5000)), kept);
+  EXPECT_EQ(map.keyframesOfPlane(floor), (std::vector<KeyFrameId>{KeyFrameId(1), KeyFrameId(2)}));
+  EXPECT_TRUE(map.planesOfKeyFrame(KeyFrameId(2)) == std::vector<PlaneId>{floor});
+  EXPECT_NEAR(polygonArea(p.boundary, p.normal), 7.0 * 2.4, 0.1 * 7.0 * 2.4);
+  // Planes of another map are left alone.
+  EXPECT_TRUE(map.refit(MapId(77), [](MapPointId) { return std::nullopt; }).removed.empty());
+  EXPECT_EQ(map.size(), 2u);
+}
+
 TEST(PlaneMapTest, DisjointCoplanarPiecesJoinWhenBridged) {
   const PlaneConfig config;
   PlaneSegmenter segmenter(config);
