@@ -236,12 +236,12 @@ inline void reportAtlasEvents(const ecar::Atlas& atlas, const ecar::SlamSystem* 
     std::printf(
         "maps merged: %s upload %d (keyframe %u) found map %u in map %u (keyframe %u), %d "
         "inliers, scale %.4f; %zu keyframes moved, %zu points fused, seam refit %s (%d of %d "
-        "reprojections, %.2f -> %.2f px, %.2f deg), %.1f ms\n",
+        "reprojections, %.2f -> %.2f px, %.2f deg, scale %.4f), %.1f ms\n",
         d < runs.size() ? runs[d].name.c_str() : "?", upload, m.query.value, m.from.value,
         m.into.value, m.match.value, m.inliers, m.scale, m.keyframes_moved, m.points_fused,
         m.refit.applied ? "applied" : "not applied", m.refit.inliers, m.refit.observations,
         m.refit.rms_before_px, m.refit.rms_after_px,
-        ecar::rotationAngle(m.refit.D.R) * 180.0 / M_PI, m.ms);
+        ecar::rotationAngle(m.refit.D.R) * 180.0 / M_PI, m.refit.D.scale, m.ms);
     nlohmann::json entry = {{"upload", upload},
                             {"device", d < runs.size() ? runs[d].name : "?"},
                             {"inliers", m.inliers},

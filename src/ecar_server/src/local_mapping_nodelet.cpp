@@ -60,14 +60,14 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
     NODELET_INFO(
         "maps merged: map %u into map %u, found by %s (keyframe %u with keyframe %u, %d inliers, "
         "scale %.4f): %zu keyframes moved, %zu points fused, seam refit %s (%d of %d "
-        "reprojections, %.2f -> %.2f px, %.2f deg) in %.1f ms; %zu planes and %zu "
+        "reprojections, %.2f -> %.2f px, %.2f deg, scale %.4f) in %.1f ms; %zu planes and %zu "
         "objects moved in %.1f ms, grid links of %zu keyframes re-cast in %.1f ms",
         m.from.value, m.into.value, graph_->devices().name(m.device).c_str(), m.query.value,
         m.match.value, m.inliers, m.scale, m.keyframes_moved, m.points_fused,
         m.refit.applied ? "applied" : "not applied", m.refit.inliers, m.refit.observations,
         m.refit.rms_before_px, m.refit.rms_after_px,
-        ecar::rotationAngle(m.refit.D.R) * 180.0 / M_PI, m.ms, r.planes, r.objects, r.structure_ms,
-        r.keyframes_recast, r.recast_ms);
+        ecar::rotationAngle(m.refit.D.R) * 180.0 / M_PI, m.refit.D.scale, m.ms, r.planes, r.objects,
+        r.structure_ms, r.keyframes_recast, r.recast_ms);
   }
 
   // On the loop closer's thread, once planes and objects moved too.
