@@ -67,16 +67,14 @@ Sim3 similarityFrom(const double d[7], const Eigen::Vector3d& c) {
   return D;
 }
 
-/// Squared, information-weighted reprojection error of o under D (infinite
-/// behind the camera).
-double chi2(const CrossObservation& o, const Eigen::Vector3d& c, const double d[7]) {
-  double r[2];
-  CrossReprojection f(o, c);
-  const Sim3 D = similarityFrom(d, c);
-  const Eigen::Vector3d q = o.moved_camera ? D.inverse() * o.p : D * o.p;
-  if ((o.R * q + o.t).z() <= 0) return std::numeric_limits<double>::infinity();
-  f(d, d + 6, r);
-  return r[0] * r[0] + r[1] * r[1];
+/// Squared, information-weighted reprojection error of o under D (D_inverse
+/// its inverse; infinite behind the camera).
+double chi2(const CrossObservation& o, const Sim3& D, const Sim3& D_inverse) {
+  const Eigen::Vector3d x = o.R * (o.moved_camera ? D_inverse * o.p : D * o.p) + o.t;
+  if (x.z() <= 0) return std::numeric_limits<double>::infinity();
+  const Eigen::Vector2d e(o.K.fx * x.x() / x.z() + o.K.cx - o.uv.x(),
+                          o.K.fy * x.y() / x.z() + o.K.cy - o.uv.y());
+  return e.squaredNorm() * o.inv_sigma2;
 }
 
 }  // namespace
@@ -119,19 +117,21 @@ SeamRefit refitSeam(Map* map, const std::unordered_set<KeyFrameId>& moved_keyfra
   double d[7] = {0, 0, 0, 0, 0, 0, 0};
   std::vector<bool> inlier(obs.size(), true);
   const auto rms = [&](const double* at) {
+    const Sim3 D = similarityFrom(at, pivot), D_inverse = D.inverse();
     double sum = 0.0;
     int n = 0;
     for (size_t i = 0; i < obs.size(); ++i) {
       if (!inlier[i]) continue;
-      sum += chi2(obs[i], pivot, at) / obs[i].inv_sigma2;
+      sum += chi2(obs[i], D, D_inverse) / obs[i].inv_sigma2;
       ++n;
     }
     return n ? std::sqrt(sum / n) : 0.0;
   };
   const auto classify = [&]() {
+    const Sim3 D = similarityFrom(d, pivot), D_inverse = D.inverse();
     int n = 0;
     for (size_t i = 0; i < obs.size(); ++i) {
-      inlier[i] = chi2(obs[i], pivot, d) < config.chi2_threshold;
+      inlier[i] = chi2(obs[i], D, D_inverse) < config.chi2_threshold;
       n += inlier[i];
     }
     return n;
