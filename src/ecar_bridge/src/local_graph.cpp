@@ -144,6 +144,9 @@ void toMsg(const ecar::LocalGraph& g, ecar_msgs::LocalGraph* msg) {
   msg->planes.clear();
   msg->planes.reserve(g.planes.size());
   for (const auto& p : g.planes) msg->planes.push_back(toMsg(p));
+  msg->removed_planes.clear();
+  msg->removed_planes.reserve(g.removed_planes.size());
+  for (const ecar::PlaneId id : g.removed_planes) msg->removed_planes.push_back(id.value);
   msg->objects.clear();
   msg->objects.reserve(g.objects.size());
   for (const auto& o : g.objects) msg->objects.push_back(toMsg(o));
@@ -200,6 +203,11 @@ ecar::LocalGraph fromMsg(const ecar_msgs::LocalGraph& msg, std::vector<std::stri
   };
   read([](const ecar_msgs::Plane& m, const std::string& f) { return fromMsg(m, f); }, msg.planes,
        "planes", &g.planes);
+  g.removed_planes.reserve(msg.removed_planes.size());
+  for (size_t i = 0; i < msg.removed_planes.size(); ++i) {
+    if (msg.removed_planes[i] == 0) throw ecar::Error(at("removed_planes", i) + ": plane id 0");
+    g.removed_planes.push_back(ecar::PlaneId(msg.removed_planes[i]));
+  }
   read([](const ecar_msgs::VirtualObject& m, const std::string& f) { return fromMsg(m, f); },
        msg.objects, "objects", &g.objects);
   return g;

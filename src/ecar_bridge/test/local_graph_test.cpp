@@ -104,6 +104,7 @@ ecar::LocalGraph ecarGraph() {
   floor.label = ecar::PlaneLabel::kFloor;
   floor.boundary = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}};
   g.planes.push_back(floor);
+  g.removed_planes = {ecar::PlaneId(5), ecar::PlaneId(9)};
   g.objects.push_back(someObject());
   return g;
 }
@@ -134,8 +135,18 @@ TEST(LocalGraphTest, EcarRoundTrip) {
   EXPECT_FLOAT_EQ(back.positions[0].p_w.z(), 3.5f);
   ASSERT_EQ(back.planes.size(), 1u);
   EXPECT_EQ(back.planes[0].label, ecar::PlaneLabel::kFloor);
+  EXPECT_EQ(back.removed_planes, g.removed_planes);
   ASSERT_EQ(back.objects.size(), 1u);
   EXPECT_EQ(back.objects[0].version, 9u);
+  // Plane id 0 is no plane.
+  ecar_msgs::LocalGraph zero = msg;
+  zero.removed_planes.push_back(0);
+  try {
+    fromMsg(zero);
+    ADD_FAILURE() << "removed plane 0 accepted";
+  } catch (const ecar::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("removed_planes[2]"), std::string::npos) << e.what();
+  }
   // A position whose point is not in the graph cannot be encoded.
   ecar::LocalGraph wrong = g;
   wrong.positions.push_back({ecar::MapPointId(99), Eigen::Vector3f(1, 2, 3)});

@@ -393,8 +393,8 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
     reset_next_ = false;  // the server forgot what we held too: this graph has it all
   }
   if (msg->map_id != 0) map_id_ = msg->map_id;
-  if (!graph.planes.empty() || !graph.objects.empty()) {
-    objects_.applyGraph(graph.planes, graph.objects);
+  if (!graph.planes.empty() || !graph.objects.empty() || !graph.removed_planes.empty()) {
+    objects_.applyGraph(graph.planes, graph.objects, graph.removed_planes);
   }
   if (ok_status && (!T_w_c_ || msg->header.stamp > pose_stamp_)) {
     T_w_c_ = graph.T_w_c;

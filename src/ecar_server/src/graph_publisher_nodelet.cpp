@@ -163,6 +163,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
       return graph_->vos().objects(ids);
     };
     lookups.device_name = [this](ecar::DeviceId id) { return graph_->devices().name(id); };
+    lookups.plane_exists = [this](ecar::PlaneId id) { return graph_->planes().contains(id); };
     std::optional<ecar::LocalGraph> graph;
     ros::Publisher pub;
     try {

@@ -11,12 +11,14 @@ import sys
 import tempfile
 import types
 import unittest
+from unittest import mock
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 from ecar_msgs.msg import DeviceFrame  # noqa: E402
 from ecar_sim.session import evaluating as ev  # noqa: E402
 from ecar_sim.session import maps  # noqa: E402
 from ecar_sim.session import report  # noqa: E402
+from ecar_sim.session import structure  # noqa: E402
 from ecar_sim.session.collecting import FrameRecord  # noqa: E402
 
 Q0 = (0.0, 0.0, 0.0, 1.0)
@@ -140,6 +142,22 @@ class FinalMapTest(unittest.TestCase):
         self.assertEqual(s["device_vs_server_frames"], 1)
         self.assertAlmostEqual(s["device_vs_server_rmse_m"], 0.03)
 
+    def test_planes_of_merged_maps_are_counted_apart(self):
+        # device_0 held planes 3 and 5 in its map 2 before the merge (and dropped them with
+        # it); plane 4 came with a new version in map 1; plane 6 predates map ids.
+        r = records()
+        r.server_maps = {"device_0": {2: 2, 4: 1}, "device_1": {0: 1}}
+        r.planes = {3: {"id": 3, "map": 2}, 4: {"id": 4, "map": 1}, 5: {"id": 5, "map": 2},
+                    6: {"id": 6}}
+        r.removed_planes = {7}
+        with mock.patch.object(structure.plane_metrics, "check_planes",
+                               side_effect=lambda planes, scene, sim: {"checked": planes}), \
+                mock.patch.object(structure, "_read_scene", return_value={}):
+            result = structure.evaluate_planes(types.SimpleNamespace(scene="s.yaml"),
+                                               ["device_0", "device_1"], r, ("sim", {}))
+        self.assertEqual([p["id"] for p in result["checked"]], [4, 6])
+        self.assertEqual((result["other_maps"], result["removed"]), (2, 1))
+
     def test_records_without_map_ids_are_one_map(self):
         r = records()
         self.assertIsNone(maps.final_map(r, ["device_0"]))
@@ -205,7 +223,8 @@ def summary():
         "overall": {"local_graph_bytes_median": 5772.0, "local_graph_bytes_p95": 7630.4,
                     "bytes_per_point_median": 19.23, "latency_ms_median": 21.8,
                     "latency_ms_p95": 46.44, "server_ms_median": 19.6},
-        "planes": {"planes": 1, "labelled_right": 1, "found": ["floor"],
+        "planes": {"planes": 1, "labelled_right": 1, "found": ["floor"], "removed": 2,
+                   "other_maps": 1,
                    "detail": [{"id": 1, "label": "floor", "true_surface": "floor",
                                "distance_m": 0.014, "angle_deg": 0.5}]},
         "vo": {"objects": 18, "changes": 293, "success": 1.0, "success_other_devices": 0.5,
@@ -231,7 +250,8 @@ class ReportTest(unittest.TestCase):
                 "server n/a",
             p + "local graph 5772 B median (p95 7630 B), 19.2 B per tracked point; latency 21.8 ms "
                 "median (p95 46.4); server 19.6 ms median",
-            p + "planes: 1, labelled right 1 (floor); 1 floor on floor 1.4 cm 0.5 deg",
+            p + "planes: 1, labelled right 1 (floor), 2 removed by the server (fused), 1 left in "
+                "merged maps; 1 floor on floor 1.4 cm 0.5 deg",
             p + "VOs (grid attach, graph share): 18 objects, 293 changes; success 100.0% overall, "
                 "50.0% on other devices; change -> held on another device 173.3 ms median (0.73 "
                 "round trips, max 1.13); position agreement 0.44 cm max (n/a max from within "

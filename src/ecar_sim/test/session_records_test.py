@@ -28,11 +28,12 @@ def wire(msg):
     return type(msg)().deserialize(buf.getvalue())
 
 
-def local_graph(device, frame, status, x, planes=()):
+def local_graph(device, frame, status, x, planes=(), removed_planes=()):
     g = LocalGraph(device_id=device, frame_index=frame, status=status)
     g.pose.position.x = x
     g.pose.orientation.w = 1.0
     g.planes = list(planes)
+    g.removed_planes = list(removed_planes)
     return wire(g)
 
 
@@ -80,6 +81,20 @@ class RecordsTest(unittest.TestCase):
         p3 = self.r.planes[3]
         self.assertEqual((p3["version"], p3["label"], p3["points"]), (2, Plane.FLOOR, 40))
         np.testing.assert_allclose(p3["centroid"], (4 / 3, 4 / 3, 0.5))
+
+    def test_planes_the_server_removed_are_dropped_and_stay_dropped(self):
+        # A merged map's young floor (3) is fused into the floor it met (1): the device that
+        # held it is told; a late graph of another device still carrying it does not bring
+        # it back.
+        self.r.on_local_graph(local_graph("device_0", 0, LocalGraph.OK, 0,
+                                          [plane(1, 1), plane(3, 1)]), "device_0")
+        self.r.on_local_graph(local_graph("device_0", 4, LocalGraph.OK, 0, [plane(1, 2)],
+                                          removed_planes=[3]), "device_0")
+        self.assertEqual(sorted(self.r.planes), [1])
+        self.r.on_local_graph(local_graph("device_1", 0, LocalGraph.OK, 0, [plane(3, 2)]),
+                              "device_1")
+        self.assertEqual(sorted(self.r.planes), [1])
+        self.assertEqual(self.r.removed_planes, {3})
 
     def test_device_frames_and_progress(self):
         progress = self.r.progress()

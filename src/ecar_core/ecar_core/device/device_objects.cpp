@@ -94,13 +94,19 @@ DeviceObjects::DeviceObjects(const DeviceObjectsConfig& config, const std::strin
 }
 
 size_t DeviceObjects::applyGraph(const std::vector<Plane>& planes,
-                                 const std::vector<VirtualObject>& objects) {
+                                 const std::vector<VirtualObject>& objects,
+                                 const std::vector<PlaneId>& removed_planes) {
   size_t changed = 0;
   for (const Plane& p : planes) {
     if (!p.id.valid()) continue;
     auto it = planes_.find(p.id);
     if (it != planes_.end() && !newer(p.version, it->second.version)) continue;
     planes_[p.id] = p;
+    planes_dirty_ = true;
+    ++changed;
+  }
+  for (const PlaneId id : removed_planes) {
+    if (planes_.erase(id) == 0) continue;
     planes_dirty_ = true;
     ++changed;
   }

@@ -100,9 +100,11 @@ class DeviceObjects {
   /// Takes the planes and VOs of one local graph. A plane replaces the held one
   /// with its id when its version is newer (or none is held); a VO likewise; a
   /// deleted VO (tombstone) removes the held one and keeps an older state from
-  /// coming back. Planes and VOs not in the graph stay. Returns how many planes
-  /// and VOs changed.
-  size_t applyGraph(const std::vector<Plane>& planes, const std::vector<VirtualObject>& objects);
+  /// coming back. Planes and VOs not in the graph stay, except the planes in
+  /// `removed_planes` (fused away on the server), which go. Returns how many
+  /// planes and VOs changed.
+  size_t applyGraph(const std::vector<Plane>& planes, const std::vector<VirtualObject>& objects,
+                    const std::vector<PlaneId>& removed_planes = {});
 
   /// Applies the server's answer to one of this device's requests. An accepted
   /// REGISTER makes the sent segment a held VO with the assigned id and version;

@@ -302,6 +302,11 @@ std::optional<Plane> PlaneMap::plane(PlaneId id) const {
   return it->second.plane;
 }
 
+bool PlaneMap::contains(PlaneId id) const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return planes_.count(id) > 0;
+}
+
 size_t PlaneMap::size() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   return planes_.size();

@@ -66,6 +66,8 @@ class PlaneMap {
   /// Copies of the given planes that exist, in the given order.
   std::vector<Plane> planes(const std::vector<PlaneId>& ids) const;
   std::optional<Plane> plane(PlaneId id) const;
+  /// Whether the plane exists (not merged into another, not emptied).
+  bool contains(PlaneId id) const;
   size_t size() const;
   /// Increments on every change; a reader can skip copying when it is unchanged.
   uint64_t revision() const;

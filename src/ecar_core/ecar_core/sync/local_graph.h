@@ -94,6 +94,7 @@ struct LocalGraph {
   std::vector<GraphKeyFrame> keyframes;   ///< edgeslam
   std::vector<GraphMapPoint> map_points;  ///< edgeslam
   std::vector<Plane> planes;              ///< near the pose, map frame
+  std::vector<PlaneId> removed_planes;    ///< sent before, gone on the server since
   std::vector<VirtualObject> objects;     ///< visible VOs and tombstones
 };
 

@@ -109,7 +109,7 @@ std::optional<LocalGraph> LocalGraphComposer::compose(const Map& map, const Comp
                   std::to_string(config_.max_points));
     }
     ++state->graphs_;
-    if (in.planes) addPlanes(*in.planes, state, &out);
+    if (in.planes) addPlanes(*in.planes, lookups, state, &out);
     if (in.objects) addObjects(*in.objects, lookups, state, &out);
   } else {
     auto lock = map.readLock();
@@ -203,10 +203,22 @@ void LocalGraphComposer::addEdgeSlamPoints(const Map& map, const TrackResult& fr
   }
 }
 
-void LocalGraphComposer::addPlanes(const std::vector<Plane>& planes, DeviceSyncState* state,
-                                   LocalGraph* out) const {
+void LocalGraphComposer::addPlanes(const std::vector<Plane>& planes, const ComposerLookups& lookups,
+                                   DeviceSyncState* state, LocalGraph* out) const {
+  if (lookups.plane_exists) {
+    for (auto it = state->planes_.begin(); it != state->planes_.end();) {
+      if (lookups.plane_exists(it->first)) {
+        ++it;
+      } else {
+        out->removed_planes.push_back(it->first);
+        it = state->planes_.erase(it);
+      }
+    }
+  }
   const double min_cos = std::cos(config_.plane_resend_angle_deg * kDegToRad);
   for (const Plane& p : planes) {
+    // The visible planes are a snapshot: one may have been fused away since.
+    if (lookups.plane_exists && !lookups.plane_exists(p.id)) continue;
     DeviceSyncState::SentPlane now;
     now.graph = state->graphs_;
     now.normal = p.normal;

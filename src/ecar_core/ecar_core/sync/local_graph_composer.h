@@ -24,7 +24,10 @@
 //   local map each time).
 // - planes near the pose: a plane the device was sent is sent again only when
 //   it changed visibly (normal, offset or extent beyond the resend
-//   thresholds), or as a refresh every plane_refresh graphs.
+//   thresholds), or as a refresh every plane_refresh graphs; and once the id
+//   of every plane the device was sent that the server no longer holds (fused
+//   into another, e.g. a merged map's floor into the floor it met), so that
+//   the device drops it instead of keeping its last, stale shape.
 // - objects visible from the pose (none when VOs are not shared through local
 //   graphs), and once the tombstone of every object the device was sent that
 //   was deleted since.
@@ -155,6 +158,8 @@ struct ComposerLookups {
   std::function<std::vector<VirtualObject>(const std::vector<ObjectId>&)> objects;
   /// A device's name (edgeslam keyframes name the device that made them).
   std::function<std::string(DeviceId)> device_name;
+  /// Whether the server still holds a plane; null: planes are never removed.
+  std::function<bool(PlaneId)> plane_exists;
 };
 
 class LocalGraphComposer {
@@ -177,7 +182,8 @@ class LocalGraphComposer {
                      LocalGraph* out) const;
   void addEdgeSlamPoints(const Map& map, const TrackResult& frame, const ComposerLookups& lookups,
                          LocalGraph* out) const;
-  void addPlanes(const std::vector<Plane>& planes, DeviceSyncState* state, LocalGraph* out) const;
+  void addPlanes(const std::vector<Plane>& planes, const ComposerLookups& lookups,
+                 DeviceSyncState* state, LocalGraph* out) const;
   void addObjects(const std::vector<VirtualObject>& objects, const ComposerLookups& lookups,
                   DeviceSyncState* state, LocalGraph* out) const;
   /// Whether a held point's move from `held` to `now` is visible from a

@@ -98,6 +98,10 @@ TEST(DeviceObjects, HeldObjectsFollowVersionsAndTombstones) {
   EXPECT_EQ(objects.applyGraph({}, {line(1, 3, {0, 4, 0}, {1, 4, 0})}), 0u);
   EXPECT_FALSE(objects.object(ObjectId(1)));
   EXPECT_TRUE(objects.objects().empty());
+  // A plane the server fused into another goes; an unknown id changes nothing.
+  ASSERT_EQ(objects.planes().count(PlaneId(7)), 1u);
+  EXPECT_EQ(objects.applyGraph({}, {}, {PlaneId(7), PlaneId(40)}), 1u);
+  EXPECT_TRUE(objects.planes().empty());
   objects.clear();
   EXPECT_TRUE(objects.planes().empty());
 }

@@ -355,6 +355,8 @@ TEST(PlaneMapTest, RefitTakesAdjustedPointsAndFusesPlanesThatBecameOne) {
         return it != adjusted.end() ? std::optional<Eigen::Vector3d>(it->second) : std::nullopt;
       });
   EXPECT_EQ(u.removed, std::vector<PlaneId>{second});
+  EXPECT_FALSE(map.contains(second));
+  EXPECT_TRUE(map.contains(floor) && map.contains(kept));
   EXPECT_EQ(u.updated, (std::vector<PlaneId>{floor, kept}));
   ASSERT_EQ(map.size(), 2u);
   EXPECT_NEAR(map.plane(kept)->offset, -1.0, 0.005);

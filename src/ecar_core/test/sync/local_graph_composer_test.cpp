@@ -5,6 +5,7 @@
 // replaced map, and a whole synthetic session in both sync modes.
 #include "ecar_core/sync/local_graph_composer.h"
 
+#include <set>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -93,7 +94,7 @@ class LocalGraphTest : public ::testing::Test {
   std::vector<KeyFrameId> kfs;
   std::vector<MapPointId> points;
   LocalGraphComposer composer;
-  ComposerLookups lookups{nullptr, &LocalGraphTest::nameOf};
+  ComposerLookups lookups{nullptr, &LocalGraphTest::nameOf, nullptr};
 };
 
 TEST_F(LocalGraphTest, PositionsAreSentOnce) {
@@ -353,6 +354,39 @@ TEST_F(LocalGraphTest, PlanesAreResentOnlyWhenTheyChangeVisiblyOrAsARefresh) {
   const uint64_t graphs = state.graphs();
   EXPECT_TRUE(c.compose(map, in, lookups, &state)->planes.empty());
   EXPECT_EQ(state.graphs(), graphs);
+}
+
+// A merged map's young floor is fused into the floor it met: the device that
+// was sent it is told once, and a stale snapshot of the visible planes that
+// still lists it does not send it again.
+TEST_F(LocalGraphTest, PlanesTheServerRemovedAreNamedOnceToTheDevicesThatHeldThem) {
+  const LocalGraphComposer c;
+  DeviceSyncState state, other;
+  const TrackResult r = trackedResult(0, 20);
+  ComposerInput in;
+  in.device = "device_1";
+  in.frame = &r;
+  in.map_epoch = 1;
+  std::set<uint32_t> held_by_server = {1, 3};
+  ComposerLookups with_planes = lookups;
+  with_planes.plane_exists = [&](PlaneId id) { return held_by_server.count(id.value) > 0; };
+  std::vector<Plane> planes = {floorPlane(1, 1), floorPlane(3, 1, 0.0, 0.08)};
+  in.planes = &planes;
+  ASSERT_EQ(c.compose(map, in, with_planes, &state)->planes.size(), 2u);
+  held_by_server.erase(3);
+  auto g = c.compose(map, in, with_planes, &state);  // the snapshot still has plane 3
+  EXPECT_TRUE(g->planes.empty());
+  EXPECT_EQ(g->removed_planes, (std::vector<PlaneId>{PlaneId(3)}));
+  EXPECT_EQ(state.numPlanes(), 1u);
+  EXPECT_TRUE(c.compose(map, in, with_planes, &state)->removed_planes.empty());
+  // A device never sent the plane is not told about it.
+  in.device = "device_2";
+  EXPECT_TRUE(c.compose(map, in, with_planes, &other)->removed_planes.empty());
+  // Without the lookup (a server that never removes planes) nothing is named.
+  held_by_server.clear();
+  DeviceSyncState third;
+  ASSERT_EQ(c.compose(map, in, lookups, &third)->planes.size(), 2u);
+  EXPECT_TRUE(c.compose(map, in, lookups, &third)->removed_planes.empty());
 }
 
 VirtualObject anchorAt(double x) {

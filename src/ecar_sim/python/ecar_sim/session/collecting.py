@@ -42,12 +42,13 @@ def pose_tuples(pose):
     return (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)
 
 
-def plane_entry(plane):
-    """A plane as the records keep it (map frame), or None without a boundary."""
+def plane_entry(plane, map_id=0):
+    """A plane as the records keep it (in the frame of server map `map_id`), or None without a
+    boundary."""
     if not plane.boundary:
         return None
     n = len(plane.boundary)
-    return {"id": plane.id, "label": plane.label, "version": plane.version,
+    return {"id": plane.id, "map": map_id, "label": plane.label, "version": plane.version,
             "normal": (plane.normal.x, plane.normal.y, plane.normal.z), "offset": plane.offset,
             "centroid": (sum(p.x for p in plane.boundary) / n,
                          sum(p.y for p in plane.boundary) / n,
@@ -67,7 +68,10 @@ class Records:
     graph_walls    {device: [wall time of each local graph]}
     objects        [(wall, VirtualObject)] every accepted change
     results        {device: {"accepted": n, "rejected": {reason: n}}}
-    planes         {plane id: newest state any device received (plane_entry)}
+    planes         {plane id: newest state any device received (plane_entry, with the map
+                   of the graph that brought it)}, without the planes the server removed
+                   since (LocalGraph.removed_planes)
+    removed_planes {plane ids the server told a device it removed (fused into another)}
     finished       {device: the player has played the whole dataset}
     """
 
@@ -83,6 +87,7 @@ class Records:
         self.objects = []
         self.results = {d: {"accepted": 0, "rejected": {}} for d in devices}
         self.planes = {}
+        self.removed_planes = set()
         self.finished = {d: False for d in devices}
         self.first_frame_wall = {}
         self.last_frame_wall = {}
@@ -117,8 +122,12 @@ class Records:
         """An ecar_msgs/LocalGraph for `device`: counted, its planes kept, its pose kept as the
         server's when its status says it has one (SERVER_POSE_STATUSES)."""
         for plane in graph.planes:
-            self.on_plane(plane)
+            self.on_plane(plane, graph.map_id)
         with self.lock:
+            for plane_id in graph.removed_planes:
+                # Plane ids are never reused: a removed plane does not come back.
+                self.removed_planes.add(plane_id)
+                self.planes.pop(plane_id, None)
             self.graphs[device] += 1
             self.graph_walls[device].append(time.time())
             if graph.status in SERVER_POSE_STATUSES:
@@ -126,13 +135,15 @@ class Records:
                 self.server_maps[device][graph.frame_index] = graph.map_id
             self.last_activity = time.time()
 
-    def on_plane(self, plane):
-        """An ecar_msgs/Plane: kept when newer than the version held."""
+    def on_plane(self, plane, map_id=0):
+        """An ecar_msgs/Plane of server map `map_id`: kept when newer than the version held (a
+        merge moves a plane into the merged map with a new version)."""
         with self.lock:
             held = self.planes.get(plane.id)
-            if held is not None and held["version"] >= plane.version:
+            if plane.id in self.removed_planes or (held is not None and
+                                                   held["version"] >= plane.version):
                 return
-        entry = plane_entry(plane)
+        entry = plane_entry(plane, map_id)
         if entry is not None:
             with self.lock:
                 self.planes[plane.id] = entry

@@ -56,8 +56,10 @@ def print_summary(s, out):
                                    fmt(o["server_ms_median"])))
     pl = s.get("planes")
     if pl:
-        log("planes: %d, labelled right %d (%s); %s" % (
-            pl["planes"], pl["labelled_right"], ", ".join(pl["found"]),
+        log("planes: %d, labelled right %d (%s), %d removed by the server (fused), %d left in "
+            "merged maps; %s" % (
+            pl["planes"], pl["labelled_right"], ", ".join(pl["found"]), pl.get("removed", 0),
+            pl.get("other_maps", 0),
             "; ".join("%d %s on %s %.1f cm %.1f deg" % (r["id"], r["label"], r["true_surface"],
                                                         100 * (r["distance_m"] or 0),
                                                         r["angle_deg"] or 0)

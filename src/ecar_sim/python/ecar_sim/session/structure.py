@@ -79,13 +79,19 @@ def evaluate_vos(args, devices, datasets, records, map_to_world):
     return result
 
 
-def evaluate_planes(args, records, map_to_world):
-    """The server's planes (as the devices received them) against the scene's surfaces, or
-    None without planes."""
+def evaluate_planes(args, devices, records, map_to_world):
+    """The server's planes in the session's final map (as the devices received them) against
+    the scene's surfaces, or None without planes. A plane last received in another map (a
+    device's map before it merged, which the device dropped with that map) is counted apart:
+    its coordinates are not the final map's. Records without map ids are one map."""
     if not records.planes or map_to_world is None:
         return None
-    return plane_metrics.check_planes(list(records.planes.values()), _read_scene(args.scene),
-                                      map_to_world[0])
+    final = maps.final_map(records, devices)
+    in_final = [p for p in records.planes.values() if not p.get("map") or p["map"] == final]
+    result = plane_metrics.check_planes(in_final, _read_scene(args.scene), map_to_world[0])
+    result["other_maps"] = len(records.planes) - len(in_final)
+    result["removed"] = len(getattr(records, "removed_planes", ()))
+    return result
 
 
 def evaluate_structure(args, devices, datasets, records):
@@ -96,7 +102,7 @@ def evaluate_structure(args, devices, datasets, records):
         log("VO and plane metrics skipped: no map -> world fit (%s)" % e)
         fit = None
     return (evaluate_vos(args, devices, datasets, records, fit),
-            evaluate_planes(args, records, fit))
+            evaluate_planes(args, devices, records, fit))
 
 
 def save_raw(path, records):
@@ -119,6 +125,7 @@ def save_raw(path, records):
                          "end": point(m.end)}] for w, m in records.objects],
         "results": records.results,
         "planes": list(records.planes.values()),
+        "removed_planes": sorted(records.removed_planes),
     }
     with gzip.open(path, "wt") as f:
         json.dump(raw, f)
@@ -153,3 +160,4 @@ class RawCollector:
                         for w, o in raw["objects"]]
         self.results = raw["results"]
         self.planes = {p["id"]: p for p in raw["planes"]}
+        self.removed_planes = set(raw.get("removed_planes", []))
