@@ -15,9 +15,9 @@ server and devices and asserts that
 - `walker_b` receives the line after the merge (in a graph of the merged map) and draws it where
   it was touched (x = 9, y 0.9-1.5, z = 1.2): the object's map position seen from walker_b's
   server pose of the frame that brought it, put in the world through that frame's ground-truth
-  pose (what the user of walker_b sees). Within 25 cm once settled (after its first
-  SETTLE_GRAPHS graphs with it), within 40 cm on those first graphs (a wrong merge is metres
-  off); both reported, beside where walker itself drew it.
+  pose (what the user of walker_b sees). Within 15 cm on its last SETTLED_GRAPHS graphs with
+  it, within 40 cm on every one (a wrong merge is metres off); both reported, beside where walker
+  itself drew it.
 
 Private params: ~scene, ~player_launch, ~frames.
 """
@@ -39,16 +39,19 @@ PKG = "ecar_sim"
 DEVICES = ["walker", "walker_b"]
 EVERY = 4  # uploads: every 4th frame
 # Graphs of walker_b right after the merge: its pose comes from the merge's similarity (refitted
-# on the welded seam's reprojections, refitSeam) until the global adjustment after the merge and its next relocalisations
-# settle it; the line may be drawn up to ~15 cm off on them (measured, reported). And walker_b
-# closes the ring's loop (with walker's first keyframe) shortly before it sees the line: until
-# that loop's correction lands on the loop-closer thread, the ring's drift lies between walker_b
-# and the line (the loop moves walker_b's keyframe 17.5 cm). In CI a correction (most likely
-# that loop's) once landed on walker_b's third graph with the line, and its first two drew the
-# line 25 and 26 cm off (10 cm after; 9-12 cm on the first graphs in runs where the loop had
-# landed before). So the first graphs' bound is 40 cm: a wrong merge leaves metres.
-SETTLE_GRAPHS = 5
+# on the welded seam's reprojections, refitSeam) until the global adjustment after the merge and
+# its next relocalisations settle it. And walker_b closes the ring's loop (with walker's first
+# keyframe) shortly before it sees the line: until that loop's correction and the global
+# adjustment after it land on the loop-closer thread, the ring's drift lies between walker_b and
+# the line (the loop moves walker_b's keyframe 5-15 cm). When they land depends on the CPU, not
+# on the data: alone, walker_b's first graphs with the line drew it 5-12 cm off; in a full suite
+# run its first 9 graphs drew it 28-32 cm off, then 10-13 cm once the loop landed (server log:
+# "loop closed ... moved 0.148 m") and 3-5 cm once its global adjustment did (frame 356 on).
+# So every graph is bounded by 40 cm (a wrong merge leaves metres), and the settled error is
+# measured on the last graphs, after the corrections landed: 3.4-5.0 cm in four runs.
+SETTLED_GRAPHS = 10
 FIRST_GRAPHS_BOUND = 0.40
+SETTLED_BOUND = 0.15
 
 
 class AtlasMergeTest(unittest.TestCase):
@@ -184,26 +187,25 @@ class AtlasMergeTest(unittest.TestCase):
             for v in (o.start, o.end):
                 per_frame[f] = max(per_frame.get(f, 0.0), off_stroke(drawn_at("walker_b", f, v)))
         frames_b = sorted(per_frame)
-        settled = [per_frame[f] for f in frames_b[SETTLE_GRAPHS:]]
+        settled = [per_frame[f] for f in frames_b[-SETTLED_GRAPHS:]]
         rospy.loginfo("walker_b's graphs with the line: frames %s; its last tracked frame %d",
                       frames_b, max(self.poses["walker_b"]))
         rospy.loginfo("walker drew the line within %.3f m of the touch; walker_b, after the merge, "
-                      "draws it within %.3f m on its first %d graphs with it (%s) and within %.3f m "
-                      "on the %d after; per frame %s", max(own or [0.0]), max(per_frame.values()),
-                      SETTLE_GRAPHS, [round(per_frame[f], 3) for f in frames_b[:SETTLE_GRAPHS]],
-                      max(settled or [0.0]), len(settled),
+                      "draws it within %.3f m on all %d graphs with it and within %.3f m on the "
+                      "last %d; per frame %s", max(own or [0.0]), max(per_frame.values()),
+                      len(frames_b), max(settled or [0.0]), len(settled),
                       {f: round(e, 3) for f, e in sorted(per_frame.items())})
         self.assertLess(max(per_frame.values()), FIRST_GRAPHS_BOUND,
                         "a wrong merge (walker_b's first graph in the merged map at frame %d): %s"
                         % (merged_at, per_frame))
-        self.assertGreaterEqual(len(settled), 5, "walker_b held the line on %d graphs" %
-                                len(frames_b))
-        # Measured settled: 5-12 cm over ten runs (the merged map fits the truth within 2-6 cm);
-        # issue 12's 2 cm target is the benchmark's, not this test's. A merge that did not move
+        self.assertGreaterEqual(len(frames_b), 2 * SETTLED_GRAPHS,
+                                "walker_b held the line on %d graphs" % len(frames_b))
+        # Issue 12's 2 cm target is the benchmark's, not this test's. A merge that did not move
         # the line (walker's map merged into walker_b's: S moves it by metres) or put it in the
-        # wrong map fails here.
-        self.assertLess(max(settled), 0.25, "walker_b draws the line %.3f m off once settled" %
-                        max(settled))
+        # wrong map fails here, and so does a loop correction that never reaches the line.
+        self.assertLess(max(settled), SETTLED_BOUND, "walker_b draws the line %.3f m off on its "
+                        "last %d graphs; per frame %s" % (max(settled), len(settled), {
+                            f: round(e, 3) for f, e in sorted(per_frame.items())}))
 
 
 if __name__ == "__main__":
