@@ -67,7 +67,7 @@ struct ServerConfig {
   bool loop_global_ba = true;  ///< a global bundle adjustment after each loop
   /// Atlas: several maps (a device that matches no map starts its own at
   /// once), merged when they overlap; false: every device joins the first map.
-  bool several_maps = true;
+  bool several_maps = false;
   /// Atlas: a device lost for this many uploads starts a new map (0: never).
   int new_map_after_lost = 8;
   /// Atlas: merge maps that overlap (place recognition on every new keyframe,
