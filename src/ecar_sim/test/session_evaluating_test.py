@@ -15,6 +15,7 @@ from unittest import mock
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 from ecar_msgs.msg import DeviceFrame  # noqa: E402
+from ecar_sim import links  # noqa: E402
 from ecar_sim.session import evaluating as ev  # noqa: E402
 from ecar_sim.session import maps  # noqa: E402
 from ecar_sim.session import report  # noqa: E402
@@ -259,6 +260,22 @@ class ReportTest(unittest.TestCase):
             p + "  by_distance: 2-4 m 100.0% (58)",
             p + "  by_angle: 0-15 deg n/a (0)",
             p + "wrote /o/summary.json and /o/metrics.csv"])
+
+    def test_link_line(self):
+        profile = links.LinkProfile("campus", down_bytes_per_s=4e6, up_bytes_per_s=2e6)
+        s = summary()
+        s["link"] = ev.link_summary(profile, {"down": 3000000, "up": 8000000}, 10.0)
+        self.assertEqual((s["link"]["down_utilisation"], s["link"]["up_utilisation"]),
+                         (0.075, 0.4))
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out):
+            report.print_summary(s, "/o")
+        self.assertEqual(out.getvalue().splitlines()[1],
+                         "[run_session] link campus: down 3.00 MB (7.5% of 4.00 MB/s), up 8.00 "
+                         "MB (40.0% of 2.00 MB/s) over the session")
+        # Loopback: the profile only, no line.
+        loop = ev.link_summary(links.LinkProfile("loopback", shaped=False), None, 10.0)
+        self.assertEqual(loop, {"profile": "loopback", "description": "", "shaped": False})
 
     def test_progress_line(self):
         line = report.progress_line(20.4, {"device_0": 64, "device_2": 60},

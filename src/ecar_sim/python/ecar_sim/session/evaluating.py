@@ -176,7 +176,23 @@ def pacing_summary(requested, achieved, wall_seconds):
     }
 
 
-def build_summary(args, devices, pacing, per_device, overall, vo, planes):
+def link_summary(profile, sent, wall):
+    """The link's part of the summary: the profile, and per direction the bytes that crossed
+    it (tc's counters of each end, everything the hosts sent) and their share of its rate over
+    the session's wall time; the bytes are None on loopback (not shaped, not counted)."""
+    out = {"profile": profile.name, "description": profile.description,
+           "shaped": profile.shaped}
+    if not profile.shaped or sent is None:
+        return out
+    for direction, rate in (("down", profile.down_bytes_per_s), ("up", profile.up_bytes_per_s)):
+        out[direction + "_bytes_per_s"] = rate
+        out[direction + "_bytes"] = sent[direction]
+        out[direction + "_utilisation"] = (round(sent[direction] / (rate * wall), 4)
+                                           if wall > 0 else None)
+    return out
+
+
+def build_summary(args, devices, pacing, per_device, overall, vo, planes, link=None):
     """The dict written as summary.json (keys in their documented order)."""
     return {
         "scene": args.scene, "devices": devices, "sync_mode": args.sync_mode,
@@ -184,8 +200,8 @@ def build_summary(args, devices, pacing, per_device, overall, vo, planes):
         "workers": args.workers, "server_config": args.server_config or None,
         "vo_attach": args.vo_attach, "vo_share": args.vo_share,
         "vo_range": args.vo_range,
-        "pacing": pacing, "per_device": per_device, "overall": overall, "vo": vo,
-        "planes": planes,
+        "link": link, "pacing": pacing, "per_device": per_device, "overall": overall,
+        "vo": vo, "planes": planes,
     }
 
 

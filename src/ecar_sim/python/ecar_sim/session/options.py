@@ -53,6 +53,10 @@ def build_parser(description=None):
                    help="uploads a device may have waiting for their local graph before the "
                         "player waits (0 = no pacing by round trip)")
     p.add_argument("--workers", type=int, default=2, help="server tracking worker threads")
+    p.add_argument("--link", default="loopback",
+                   help="the link the server and the devices share: a profile of config/links "
+                        "(loopback, campus, wifi) or a profile file; shaped links run the server "
+                        "and the devices in network namespaces of their own (needs root)")
     p.add_argument("--server-config", default="",
                    help="server parameter file instead of config/server.yaml (for A/B runs)")
     p.add_argument("--datasets", default=os.path.join(REPO_ROOT, "out", "datasets"),

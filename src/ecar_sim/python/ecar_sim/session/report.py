@@ -35,6 +35,13 @@ def print_summary(s, out):
     """The summary lines of a session summary (summary.json's dict) written to out."""
     o = s["overall"]
     log("%s" % s["pacing"]["note"])
+    link = s.get("link")
+    if link and link.get("down_bytes") is not None:
+        log("link %s: down %.2f MB (%s of %.2f MB/s), up %.2f MB (%s of %.2f MB/s) over the "
+            "session" % (link["profile"], link["down_bytes"] / 1e6,
+                         fmt(link["down_utilisation"], "%", 100.0), link["down_bytes_per_s"] / 1e6,
+                         link["up_bytes"] / 1e6, fmt(link["up_utilisation"], "%", 100.0),
+                         link["up_bytes_per_s"] / 1e6))
     for d, r in s["per_device"].items():
         log("%s: uploads %d, graphs %d (%d with a pose), device tracked %s after its first graph, "
             "device-vs-server %s over %d frames, ATE device %s / server %s" %

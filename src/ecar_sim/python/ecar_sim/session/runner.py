@@ -14,6 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import rospy
 
+from ecar_sim import links
 from ecar_sim.session import evaluating, launching, maps, options, structure
 from ecar_sim.session.collecting import Collector
 from ecar_sim.session.datasets import dataset_frames, ensure_dataset, read_fps, scene_devices
@@ -47,18 +48,27 @@ def prepare_out(out):
     return log_dir
 
 
-def session_env(port, log_dir):
-    """The environment of the session's children (its own master, logs in log_dir, output
-    flushed line by line so that a log is complete up to a crash); this process's rospy gets
-    the same master."""
+def session_env(port, log_dir, hosts=None):
+    """The environments of the session's children on each host, {"server": env, "devices":
+    env}: its own master, logs in log_dir, output flushed line by line so that a log is
+    complete up to a crash. On loopback (hosts None or not shaped) both are one, on
+    127.0.0.1; on a shaped link each host's nodes announce its address (ROS_IP) and find the
+    master on the server host, as on two machines. This process's rospy gets the same master
+    (on a shaped link from the observer host, links.Hosts)."""
     env = dict(os.environ)
-    env.update({"ROS_MASTER_URI": "http://127.0.0.1:%d" % port, "ROS_HOSTNAME": "127.0.0.1",
-                "ROS_LOG_DIR": log_dir, "PYTHONUNBUFFERED": "1",
+    env.update({"ROS_LOG_DIR": log_dir, "PYTHONUNBUFFERED": "1",
                 "ROSCONSOLE_STDOUT_LINE_BUFFERED": "1"})
-    env.pop("ROS_IP", None)
-    os.environ.update({k: env[k] for k in ("ROS_MASTER_URI", "ROS_HOSTNAME", "ROS_LOG_DIR")})
-    os.environ.pop("ROS_IP", None)
-    return env
+    if hosts is None or not hosts.profile.shaped:
+        env.update({"ROS_MASTER_URI": "http://127.0.0.1:%d" % port, "ROS_HOSTNAME": "127.0.0.1"})
+        env.pop("ROS_IP", None)
+        os.environ.update({k: env[k] for k in ("ROS_MASTER_URI", "ROS_HOSTNAME", "ROS_LOG_DIR")})
+        os.environ.pop("ROS_IP", None)
+        return {"server": env, "devices": env}
+    uri = hosts.master_uri(port)
+    os.environ.update(hosts.observer.env(uri, {}))
+    os.environ["ROS_LOG_DIR"] = log_dir
+    os.environ.pop("ROS_HOSTNAME", None)
+    return {"server": hosts.server.env(uri, env), "devices": hosts.devices.env(uri, env)}
 
 
 def report_deaths(error):
@@ -79,20 +89,23 @@ def progress_text(collector, frames, fps, elapsed):
                          {d: p.graphs for d, p in prog.items()}, rate)
 
 
-def start_nodes(args, env, port, devices, datasets, procs):
-    """The ROS master (on port), the server and the devices; returns once the server's
-    /ecar/connect is up. Also writes the session's launch files into args.out."""
-    procs.start("roscore", "the ROS master", ["roscore", "-p", str(port)], env)
-    master = launching.wait_for_master(env["ROS_MASTER_URI"], MASTER_TIMEOUT_S, procs)
+def start_nodes(args, hosts, envs, port, devices, datasets, procs):
+    """The ROS master (on port) and the server on the server host, the devices on the devices
+    host; returns once the server's /ecar/connect is up. Also writes the session's launch
+    files into args.out."""
+    procs.start("roscore", "the ROS master", hosts.server.wrap(["roscore", "-p", str(port)]),
+                envs["server"])
+    master = launching.wait_for_master(envs["server"]["ROS_MASTER_URI"], MASTER_TIMEOUT_S,
+                                       procs)
     server = launching.server_include(args)
     device_includes = {d: launching.device_include(args, d) for d in devices}
     launching.write_launch(os.path.join(args.out, "session_nodes.launch"),
                            [server] + list(device_includes.values()))
     launching.write_launch(os.path.join(args.out, "session_players.launch"),
                            [launching.player_include(args, d, datasets[d]) for d in devices])
-    procs.start("server", "the server", server.command(), env)
+    procs.start("server", "the server", hosts.server.wrap(server.command()), envs["server"])
     for d, inc in device_includes.items():
-        procs.start(d, "device %s" % d, inc.command(), env)
+        procs.start(d, "device %s" % d, hosts.devices.wrap(inc.command()), envs["devices"])
     # Devices connect once their camera_info arrives (it carries the intrinsics), so the
     # players start as soon as the server's connect service is up.
     deadline = time.time() + CONNECT_TIMEOUT_S
@@ -104,14 +117,16 @@ def start_nodes(args, env, port, devices, datasets, procs):
         time.sleep(0.2)
 
 
-def play(args, env, devices, datasets, procs, collector, frames, fps, timeout):
-    """Starts the players and waits until every dataset has played and the last messages are
-    in; returns (wall seconds, finished in time). Raises ChildDied when a child dies."""
+def play(args, hosts, envs, devices, datasets, procs, collector, frames, fps, timeout):
+    """Starts the players (on the devices host) and waits until every dataset has played and
+    the last messages are in; returns (wall seconds, finished in time). Raises ChildDied when
+    a child dies."""
     log("server up; playing %d device(s)" % len(devices))
     start = time.time()
     for d in devices:
         procs.start("%s_player" % d, "the player of %s" % d,
-                    launching.player_include(args, d, datasets[d]).command(), env)
+                    hosts.devices.wrap(launching.player_include(args, d, datasets[d]).command()),
+                    envs["devices"])
     next_progress = start + PROGRESS_PERIOD_S
     while time.time() < start + timeout:
         done, idle = collector.all_finished()
@@ -131,8 +146,24 @@ def run(args):
     out = args.out
     log_dir = prepare_out(out)
     scene_name, devices = scene_devices(args.scene, args.devices, args.device_names)
+    try:
+        profile = links.LinkProfile.find(args.link, os.path.join(options.REPO_ROOT, "config",
+                                                                 "links"))
+        with links.Hosts(profile, observer=True) as hosts:
+            for name in hosts.removed_leftovers:
+                log("removed network namespace %s of a run that ended without cleaning up" %
+                    name)
+            return _run_on(args, out, log_dir, scene_name, devices, hosts)
+    except links.LinkError as e:
+        log("error: " + str(e))
+        return 2
+
+
+def _run_on(args, out, log_dir, scene_name, devices, hosts):
+    """run() on the hosts of the session's link."""
     port = launching.free_port()
-    env = session_env(port, log_dir)
+    envs = session_env(port, log_dir, hosts)
+    env = envs["server"]
 
     # make_dataset renders on one core: one per core at a time.
     try:
@@ -145,17 +176,19 @@ def run(args):
     frames = {d: dataset_frames(datasets[d]) for d in devices}
     fps = read_fps(datasets[devices[0]])
     timeout = args.timeout or 4.0 * max(frames.values()) / fps / args.rate + 120.0
-    log("%d device(s) %s, %s mode, every %d, JPEG %d, rate %g, master on port %d" %
+    log("%d device(s) %s, %s mode, every %d, JPEG %d, rate %g, link %s, master on %s" %
         (len(devices), ",".join(devices), args.sync_mode, args.every, args.jpeg_quality,
-         args.rate, port))
+         args.rate, hosts.profile.name, envs["server"]["ROS_MASTER_URI"]))
 
     procs = launching.Processes(log_dir)
     try:
-        start_nodes(args, env, port, devices, datasets, procs)
+        start_nodes(args, hosts, envs, port, devices, datasets, procs)
         rospy.init_node("run_session", anonymous=True, disable_signals=True)
         collector = Collector(devices)
-        wall, in_time = play(args, env, devices, datasets, procs, collector, frames, fps,
-                             timeout)
+        sent_before = hosts.counters()
+        wall, in_time = play(args, hosts, envs, devices, datasets, procs, collector, frames,
+                             fps, timeout)
+        sent_after = hosts.counters()
     except launching.ChildDied as e:
         report_deaths(e)
         return 2
@@ -179,7 +212,11 @@ def run(args):
     spans = {d: (frames[d], collector.first_frame_wall.get(d), collector.last_frame_wall.get(d))
              for d in devices}
     pacing = evaluating.pacing_summary(args.rate, evaluating.playback_rate(spans, fps), wall)
-    summary = evaluating.build_summary(args, devices, pacing, per_device, overall, vo, planes)
+    sent = None if sent_before is None else {k: sent_after[k] - sent_before[k]
+                                             for k in sent_before}
+    link = evaluating.link_summary(hosts.profile, sent, wall)
+    summary = evaluating.build_summary(args, devices, pacing, per_device, overall, vo, planes,
+                                       link)
     evaluating.write_summary(out, summary)
     evaluating.write_metrics_csv(out, collector.metrics)
     print_summary(summary, out)
