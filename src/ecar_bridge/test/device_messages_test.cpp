@@ -144,6 +144,7 @@ TEST(RoundTripMetricsTest, LatencyPartsAndBytes) {
   g.server_received = ros::Time(10, 10000000);  // 10 ms after sending
   g.server_sent = ros::Time(10, 30000000);
   g.server_time = 0.02f;
+  g.tracking_time = 0.012f;
   RoundTrip t;
   t.device_id = "device_0";
   t.bytes_up = 20000;
@@ -159,6 +160,7 @@ TEST(RoundTripMetricsTest, LatencyPartsAndBytes) {
   EXPECT_NEAR(m.latency, 0.035, 1e-6);
   EXPECT_NEAR(m.upload_time, 0.010, 1e-6);
   EXPECT_NEAR(m.server_time, 0.020, 1e-6);
+  EXPECT_FLOAT_EQ(m.align_time, 0.012f);
   EXPECT_NEAR(m.download_time, 0.005, 1e-6);
   EXPECT_FLOAT_EQ(m.tracking_time_device, 0.008f);
   EXPECT_EQ(m.header.stamp, t.received);

@@ -239,6 +239,14 @@ class HostsTest(unittest.TestCase):
         self.assertGreater(up, 100000)
         self.assertGreaterEqual(link["up_bytes"], up)
         self.assertGreaterEqual(link["down_bytes"], down)
+        # An upload (~50 kB) waits for the uplink's rate beyond the bucket: at least 90% of
+        # (bytes - burst) / rate, median over the uploads (on loopback it takes ~0.5 ms).
+        profile = links.LinkProfile.find("campus", LINKS_DIR)
+        waits = sorted(float(row["upload_ms"]) - 0.9e3 * (int(row["bytes_up"]) -
+                                                         profile.burst_bytes) /
+                       profile.up_bytes_per_s for row in rows)
+        self.assertGreater(waits[len(waits) // 2], 0.0, "upload times %s" %
+                           [row["upload_ms"] for row in rows])
         self.assertFalse({n for n in namespaces() if n.startswith(links.PREFIX)},
                          "namespaces left behind")
 

@@ -41,7 +41,8 @@ def write_dataset(folder, frames):
 def metric_row(device, frame, latency, bytes_down=1000, points=50, server=5.0):
     return {"device": device, "frame": frame, "bytes_up": 20000, "bytes_down": bytes_down,
             "points": points, "positions": 3, "latency_ms": latency, "upload_ms": 1.0,
-            "server_ms": server, "download_ms": 0.5, "device_tracking_ms": 3.0}
+            "server_ms": server, "align_ms": 0.5 * server, "download_ms": 0.5,
+            "device_tracking_ms": 3.0}
 
 
 def records():
@@ -173,6 +174,9 @@ class OverallTest(unittest.TestCase):
         self.assertEqual(o["local_graph_bytes_median"], 2000)
         self.assertEqual(o["latency_ms_median"], 20.0)
         self.assertEqual(o["server_ms_median"], 5.0)
+        self.assertEqual((o["upload_ms_median"], o["align_ms_median"],
+                          o["server_other_ms_median"], o["download_ms_median"]),
+                         (1.0, 2.5, 2.5, 0.5))
         # The graph without points is left out: 1000/50 and 2000/100.
         self.assertEqual(o["bytes_per_point_median"], 20.0)
         self.assertEqual(o["device_tracking_ms_median"], 9.0)
@@ -223,7 +227,9 @@ def summary():
         "pacing": ev.pacing_summary(1.0, 0.44, 20.0), "per_device": {"device_0": per},
         "overall": {"local_graph_bytes_median": 5772.0, "local_graph_bytes_p95": 7630.4,
                     "bytes_per_point_median": 19.23, "latency_ms_median": 21.8,
-                    "latency_ms_p95": 46.44, "server_ms_median": 19.6},
+                    "latency_ms_p95": 46.44, "server_ms_median": 19.6, "upload_ms_median": 1.2,
+                    "align_ms_median": 12.5, "server_other_ms_median": 7.1,
+                    "download_ms_median": 0.4},
         "planes": {"planes": 1, "labelled_right": 1, "found": ["floor"], "removed": 2,
                    "other_maps": 1,
                    "detail": [{"id": 1, "label": "floor", "true_surface": "floor",
@@ -251,6 +257,8 @@ class ReportTest(unittest.TestCase):
                 "server n/a",
             p + "local graph 5772 B median (p95 7630 B), 19.2 B per tracked point; latency 21.8 ms "
                 "median (p95 46.4); server 19.6 ms median",
+            p + "latency's parts, medians: upload 1.2 ms, on the server 19.6 ms (align 12.5, "
+                "queueing, decoding and composing 7.1), download 0.4 ms",
             p + "planes: 1, labelled right 1 (floor), 2 removed by the server (fused), 1 left in "
                 "merged maps; 1 floor on floor 1.4 cm 0.5 deg",
             p + "VOs (grid attach, graph share): 18 objects, 293 changes; success 100.0% overall, "

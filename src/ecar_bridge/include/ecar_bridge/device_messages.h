@@ -75,7 +75,8 @@ struct RoundTrip {
 
 /// Metrics of the round trip that `graph` ends: bytes (wireBytes of the graph
 /// down), latency = received - sent, upload_time = server_received - sent,
-/// server_time from the graph, download_time = received - server_sent;
+/// server_time and align_time (its tracking_time) from the graph,
+/// download_time = received - server_sent;
 /// points = points (ecar) or map_points (edgeslam).
 ecar_msgs::RoundTripMetrics toMsg(const ecar_msgs::LocalGraph& graph, const RoundTrip& trip);
 

@@ -99,7 +99,8 @@ class Records:
             "device": m.device_id, "frame": m.frame_index, "bytes_up": m.bytes_up,
             "bytes_down": m.bytes_down, "points": m.points, "positions": m.positions,
             "latency_ms": 1e3 * m.latency, "upload_ms": 1e3 * m.upload_time,
-            "server_ms": 1e3 * m.server_time, "download_ms": 1e3 * m.download_time,
+            "server_ms": 1e3 * m.server_time, "align_ms": 1e3 * m.align_time,
+            "download_ms": 1e3 * m.download_time,
             "device_tracking_ms": 1e3 * m.tracking_time_device,
         }
         with self.lock:

@@ -25,7 +25,8 @@ from ecar_sim.session import maps
 from ecar_sim.session.datasets import read_frame_times
 
 METRICS_FIELDS = ["device", "frame", "bytes_up", "bytes_down", "points", "positions",
-                  "latency_ms", "upload_ms", "server_ms", "download_ms", "device_tracking_ms"]
+                  "latency_ms", "upload_ms", "server_ms", "align_ms", "download_ms",
+                  "device_tracking_ms"]
 
 
 def percentile(values, q):
@@ -145,6 +146,13 @@ def overall_summary(devices, records):
         "latency_ms_p95": rnd(percentile([r["latency_ms"] for r in rows], 95), 2),
         "server_ms_median": rnd(percentile([r["server_ms"] for r in rows], 50), 2),
         "server_ms_p95": rnd(percentile([r["server_ms"] for r in rows], 95), 2),
+        # The latency's parts: device -> server, on the server (of it the alignment, the rest
+        # queueing, decoding and composing), server -> device.
+        "upload_ms_median": rnd(percentile([r["upload_ms"] for r in rows], 50), 2),
+        "align_ms_median": rnd(percentile([r.get("align_ms", 0.0) for r in rows], 50), 2),
+        "server_other_ms_median": rnd(percentile(
+            [r["server_ms"] - r.get("align_ms", 0.0) for r in rows], 50), 2),
+        "download_ms_median": rnd(percentile([r["download_ms"] for r in rows], 50), 2),
         "device_tracking_ms_median": rnd(percentile(
             [e.tracking_time * 1e3 for d in devices for e in records.device_frames[d].values()],
             50), 2),

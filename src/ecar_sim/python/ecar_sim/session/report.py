@@ -61,6 +61,11 @@ def print_summary(s, out):
                                    fmt(o["bytes_per_point_median"], "", 1, 1),
                                    fmt(o["latency_ms_median"]), fmt(o["latency_ms_p95"]),
                                    fmt(o["server_ms_median"])))
+    if o.get("upload_ms_median") is not None:
+        log("latency's parts, medians: upload %s ms, on the server %s ms (align %s, queueing, "
+            "decoding and composing %s), download %s ms" % (
+                fmt(o["upload_ms_median"]), fmt(o["server_ms_median"]), fmt(o["align_ms_median"]),
+                fmt(o["server_other_ms_median"]), fmt(o["download_ms_median"])))
     pl = s.get("planes")
     if pl:
         log("planes: %d, labelled right %d (%s), %d removed by the server (fused), %d left in "
