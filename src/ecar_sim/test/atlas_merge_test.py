@@ -15,7 +15,7 @@ server and devices and asserts that
 - `walker_b` receives the line after the merge (in a graph of the merged map) and draws it where
   it was touched (x = 9, y 0.9-1.5, z = 1.2): the object's map position seen from walker_b's
   server pose of the frame that brought it, put in the world through that frame's ground-truth
-  pose (what the user of walker_b sees). Within 15 cm on its last SETTLED_GRAPHS graphs with
+  pose (what the user of walker_b sees). Within 20 cm on its last SETTLED_GRAPHS graphs with
   it, within 40 cm on every one (a wrong merge is metres off); both reported, beside where walker
   itself drew it.
 
@@ -48,10 +48,13 @@ EVERY = 4  # uploads: every 4th frame
 # run its first 9 graphs drew it 28-32 cm off, then 10-13 cm once the loop landed (server log:
 # "loop closed ... moved 0.148 m") and 3-5 cm once its global adjustment did (frame 356 on).
 # So every graph is bounded by 40 cm (a wrong merge leaves metres), and the settled error is
-# measured on the last graphs, after the corrections landed: 3.4-5.0 cm in four runs.
+# measured on the last graphs, after the corrections landed: 3.6-9.9 cm in six runs. What is
+# left then grows with walker_b's distance from the line (about 10 m at its last frames) times
+# the map's scale error, which follows the simulated odometry's +1% bias (1.0-1.6% measured):
+# 10-16 cm at worst; so 20 cm.
 SETTLED_GRAPHS = 10
 FIRST_GRAPHS_BOUND = 0.40
-SETTLED_BOUND = 0.15
+SETTLED_BOUND = 0.20
 
 
 class AtlasMergeTest(unittest.TestCase):
