@@ -255,9 +255,18 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
                           config_.device.c_str(), frame_done_sub_.getTopic().c_str(), header.seq, i,
                           config_.ack_timeout);
       }
-      // The consumer sets the pace: schedule the next frames from now.
-      anchor_wall_ = Clock::now();
-      anchor_t_ = frame.timestamp;
+      // As a camera: the next frame is due one frame interval after this one
+      // was due, not after the consumer took it. A consumer that took it late
+      // (behind the playback clock) gets the next one at once, and the
+      // schedule goes on from there.
+      const auto now = Clock::now();
+      const auto due =
+          anchor_wall_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(
+                             (frame.timestamp - anchor_t_) / std::max(config_.rate, 1e-9)));
+      if (config_.rate <= 0.0 || now > due) {
+        anchor_wall_ = now;
+        anchor_t_ = i + 1 < end ? dataset_.frame(i + 1).timestamp : frame.timestamp;
+      }
     }
     // After the consumer's frame_done when paced: the device touches at this frame's pose.
     if (publishTouches(i, header) > 0 && config_.pace_by_consumer && config_.touch_settle > 0.0) {
