@@ -23,6 +23,7 @@ COMMON_PKGS=(
   libgtest-dev googletest
   python3-numpy python3-matplotlib python3-yaml
   xvfb imagemagick clang-format
+  iproute2 procps  # ip netns, tc, sysctl: the shared link (ecar_sim.links, run_session --link)
 )
 
 if [[ -d /opt/ros/noetic ]]; then

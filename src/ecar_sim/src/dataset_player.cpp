@@ -229,11 +229,7 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
       continue;
     }
 
-    if (config_.rate > 0.0) {
-      const auto offset =
-          std::chrono::duration<double>((frame.timestamp - anchor_t_) / config_.rate);
-      if (!sleepUntil(anchor_wall_ + std::chrono::duration_cast<Clock::duration>(offset))) break;
-    }
+    if (config_.rate > 0.0 && !sleepUntil(dueAt(frame.timestamp))) break;
 
     std_msgs::Header header;
     try {
@@ -260,10 +256,7 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
       // (behind the playback clock) gets the next one at once, and the
       // schedule goes on from there.
       const auto now = Clock::now();
-      const auto due =
-          anchor_wall_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(
-                             (frame.timestamp - anchor_t_) / std::max(config_.rate, 1e-9)));
-      if (config_.rate <= 0.0 || now > due) {
+      if (config_.rate > 0.0 && now > dueAt(frame.timestamp)) {
         anchor_wall_ = now;
         anchor_t_ = i + 1 < end ? dataset_.frame(i + 1).timestamp : frame.timestamp;
       }
@@ -387,6 +380,11 @@ void DatasetPlayer::waitForSubscribers() {
   // Give the subscribers of the other topics (camera_info, tf, ...) time to connect.
   sleepUntil(Clock::now() + std::chrono::duration_cast<Clock::duration>(
                                 std::chrono::duration<double>(config_.start_delay)));
+}
+
+DatasetPlayer::Clock::time_point DatasetPlayer::dueAt(double timestamp) const {
+  return anchor_wall_ + std::chrono::duration_cast<Clock::duration>(
+                            std::chrono::duration<double>((timestamp - anchor_t_) / config_.rate));
 }
 
 bool DatasetPlayer::sleepUntil(Clock::time_point until) {

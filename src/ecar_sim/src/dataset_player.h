@@ -128,6 +128,8 @@ class DatasetPlayer {
   void waitForSubscribers();
   /// Sleeps until `until` (servicing callbacks); false when ROS shut down.
   bool sleepUntil(Clock::time_point until);
+  /// When a frame stamped `timestamp` is due on the playback clock (rate > 0).
+  Clock::time_point dueAt(double timestamp) const;
   /// Waits for a frame_done >= seq, at most ~ack_timeout; false on timeout.
   bool waitForAck(uint32_t seq);
   void onFrameDone(const std_msgs::UInt32& msg);
