@@ -5,6 +5,10 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <functional>
+#include <utility>
+
+#include <boost/make_shared.hpp>
 
 #include <cv_bridge/cv_bridge.h>
 #include <std_msgs/UInt32.h>
@@ -32,6 +36,19 @@ using device_internal::kWarnPeriod;
 constexpr size_t kOdometryKept = 64;
 
 const char* stateName(ecar::TrackingState s) { return ecar::toString(s); }
+
+/// Runs a function once on the callback queue it is added to.
+class CallOnce : public ros::CallbackInterface {
+ public:
+  explicit CallOnce(std::function<void()> fn) : fn_(std::move(fn)) {}
+  CallResult call() override {
+    fn_();
+    return Success;
+  }
+
+ private:
+  std::function<void()> fn_;
+};
 
 }  // namespace
 
@@ -147,6 +164,12 @@ void Device::onCameraInfo(const sensor_msgs::CameraInfoConstPtr& msg) {
     camera_info_ = *msg;
     has_camera_info_ = true;
     pending_.clear();
+    // Connect now, not at the next tick: frames played before the connection
+    // are not uploaded.
+    if (!connect_requested_) {
+      connect_requested_ = true;
+      connect_queue_.addCallback(boost::make_shared<CallOnce>([this] { onConnectTimer(); }));
+    }
   } catch (const ecar::Error& e) {
     ROS_WARN_THROTTLE(kWarnPeriod, "%s: camera_info dropped: %s", config_.device_id.c_str(),
                       e.what());
@@ -224,8 +247,19 @@ void Device::onImage(const sensor_msgs::ImageConstPtr& msg) {
 
   bool uploaded = false;
   if (connected_ && seq % static_cast<uint32_t>(config_.every) == 0) {
-    upload(gray, *msg);
-    uploaded = true;
+    // The topics are joined on our connection: until they are, an upload or
+    // its graph would go nowhere and hold the pacing for nothing.
+    if (linkedToServer()) {
+      upload(gray, *msg);
+      uploaded = true;
+    } else {
+      upload_due_since_progress_ = true;  // a server gone for good: connect again
+      ROS_WARN_THROTTLE(kWarnPeriod,
+                        "%s: the server is not yet subscribed to %s or publishing %s: frame %u "
+                        "not uploaded",
+                        config_.device_id.c_str(), upload_topic_.c_str(),
+                        local_graph_topic_.c_str(), seq);
+    }
   }
   const ecar::DeviceTrackResult& r = tracker_->track(gray, msg->header.stamp.toSec(), seq);
   if (uploaded && !pending_.empty() && pending_.back().frame_index == seq) {
@@ -292,7 +326,7 @@ void Device::publishHeldUpload() {
   }
   upload_pub_.publish(msg);
   held_upload_.reset();
-  uploaded_since_progress_ = true;
+  upload_due_since_progress_ = true;
 }
 
 void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
@@ -402,7 +436,7 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
   }
   last_graph_frame_ = msg->frame_index;
   last_progress_ = ros::WallTime::now();
-  uploaded_since_progress_ = false;
+  upload_due_since_progress_ = false;
 
   ecar_bridge::RoundTrip trip;
   trip.device_id = config_.device_id;
@@ -458,8 +492,25 @@ void Device::prunePending(const ros::Time& now) {
 
 // ---------------------------------------------------------------- pacing
 
+bool Device::linkedToServer() const {
+  return upload_pub_.getNumSubscribers() > 0 && graph_sub_.getNumPublishers() > 0;
+}
+
+bool Device::holdsFrames() const {
+  if (config_.pace_in_flight <= 0) return false;
+  if (connect_requested_) return true;
+  // An upload whose graph is later than ~pace_timeout is lost (or the server
+  // is far behind): it no longer holds the camera.
+  const ros::Time now = ros::Time::now();
+  const int in_flight =
+      static_cast<int>(std::count_if(pending_.begin(), pending_.end(), [&](const Pending& p) {
+        return (now - p.sent).toSec() < config_.pace_timeout;
+      }));
+  return in_flight >= config_.pace_in_flight;
+}
+
 void Device::frameDone(uint32_t seq) {
-  if (config_.pace_in_flight <= 0 || static_cast<int>(pending_.size()) < config_.pace_in_flight) {
+  if (!holdsFrames()) {
     held_done_.reset();
     std_msgs::UInt32 done;
     done.data = seq;
@@ -472,7 +523,7 @@ void Device::frameDone(uint32_t seq) {
 
 void Device::releaseFrameDone(bool force) {
   if (!held_done_) return;
-  if (!force && static_cast<int>(pending_.size()) >= config_.pace_in_flight) return;
+  if (!force && holdsFrames()) return;
   std_msgs::UInt32 done;
   done.data = *held_done_;
   held_done_.reset();
@@ -484,19 +535,35 @@ void Device::onPaceTimer() {
   prunePending(ros::Time::now());
   const bool timed_out =
       held_done_ && (ros::WallTime::now() - held_since_).toSec() >= config_.pace_timeout;
+  // The server joins our topics on our connection: until it has, an upload or
+  // its graph would go nowhere.
+  if (connect_requested_ && connected_ && (timed_out || linkedToServer())) {
+    connect_requested_ = false;
+  }
   releaseFrameDone(timed_out);
 }
 
 // ---------------------------------------------------------------- connection
 
 void Device::onConnectTimer() {
+  connect();
+  std::lock_guard<std::mutex> lock(mutex_);
+  // When paced and connected, the frames wait on for the server's subscription
+  // to our uploads (onPaceTimer).
+  if (connect_requested_ && (!connected_ || config_.pace_in_flight <= 0)) {
+    connect_requested_ = false;
+    releaseFrameDone(true);
+  }
+}
+
+void Device::connect() {
   ecar_msgs::Connect srv;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (!has_camera_info_) return;
     if (connected_) {
       const double silent = (ros::WallTime::now() - last_progress_).toSec();
-      if (!uploaded_since_progress_ || silent < config_.reconnect_timeout) return;
+      if (!upload_due_since_progress_ || silent < config_.reconnect_timeout) return;
       ROS_WARN("%s: no local graph for %.1f s while uploading: connecting again",
                config_.device_id.c_str(), silent);
       connected_ = false;
@@ -547,7 +614,7 @@ void Device::onConnectTimer() {
   connected_ = true;
   reset_next_ = true;
   last_progress_ = ros::WallTime::now();
-  uploaded_since_progress_ = false;
+  upload_due_since_progress_ = false;
   ROS_INFO("%s: connected (%s), map epoch %u, uploading on %s", config_.device_id.c_str(),
            srv.response.message.c_str(), epoch_, upload_topic_.c_str());
 }

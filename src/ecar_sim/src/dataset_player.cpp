@@ -136,7 +136,8 @@ DatasetPlayer::DatasetPlayer(ros::NodeHandle nh, DatasetPlayerConfig config)
       dataset_(openDataset(config_)),
       camera_info_(ecar_bridge::toMsg(dataset_.camera(), std_msgs::Header())),
       nh_(std::move(nh)),
-      it_(nh_) {
+      it_(nh_),
+      clock_(config_.rate > 0.0 ? config_.rate : 1.0) {
   if (static_cast<size_t>(config_.first_frame) >= dataset_.size()) {
     throw ecar::Error("~first_frame: " + std::to_string(config_.first_frame) +
                       " is past the last frame of " + dataset_.dir() + " (" +
@@ -209,8 +210,7 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
         imu.begin();
   }
   previous_.reset();
-  anchor_wall_ = Clock::now();
-  anchor_t_ = dataset_.frame(begin).timestamp;
+  clock_.restart(Clock::now(), dataset_.frame(begin).timestamp);
 
   size_t published = 0;
   for (size_t i = begin; i < end && ros::ok(); ++i) {
@@ -229,7 +229,7 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
       continue;
     }
 
-    if (config_.rate > 0.0 && !sleepUntil(dueAt(frame.timestamp))) break;
+    if (config_.rate > 0.0 && !sleepUntil(clock_.dueAt(frame.timestamp))) break;
 
     std_msgs::Header header;
     try {
@@ -251,21 +251,17 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
                           config_.device.c_str(), frame_done_sub_.getTopic().c_str(), header.seq, i,
                           config_.ack_timeout);
       }
-      // As a camera: the next frame is due one frame interval after this one
-      // was due, not after the consumer took it. A consumer that took it late
-      // (behind the playback clock) gets the next one at once, and the
-      // schedule goes on from there.
-      const auto now = Clock::now();
-      if (config_.rate > 0.0 && now > dueAt(frame.timestamp)) {
-        anchor_wall_ = now;
-        anchor_t_ = i + 1 < end ? dataset_.frame(i + 1).timestamp : frame.timestamp;
+      // As a camera: the next frame stays due one interval after this one was
+      // due; a consumer done after that gets it at once (PlaybackClock).
+      if (config_.rate > 0.0 && i + 1 < end) {
+        clock_.consumerDone(Clock::now(), dataset_.frame(i + 1).timestamp);
       }
     }
     // After the consumer's frame_done when paced: the device touches at this frame's pose.
     if (publishTouches(i, header) > 0 && config_.pace_by_consumer && config_.touch_settle > 0.0) {
       const auto settle = std::chrono::duration<double>(config_.touch_settle);
       if (!sleepUntil(Clock::now() + std::chrono::duration_cast<Clock::duration>(settle))) break;
-      anchor_wall_ = Clock::now();
+      if (i + 1 < end) clock_.restart(Clock::now(), dataset_.frame(i + 1).timestamp);
     }
   }
   return published;
@@ -380,11 +376,6 @@ void DatasetPlayer::waitForSubscribers() {
   // Give the subscribers of the other topics (camera_info, tf, ...) time to connect.
   sleepUntil(Clock::now() + std::chrono::duration_cast<Clock::duration>(
                                 std::chrono::duration<double>(config_.start_delay)));
-}
-
-DatasetPlayer::Clock::time_point DatasetPlayer::dueAt(double timestamp) const {
-  return anchor_wall_ + std::chrono::duration_cast<Clock::duration>(
-                            std::chrono::duration<double>((timestamp - anchor_t_) / config_.rate));
 }
 
 bool DatasetPlayer::sleepUntil(Clock::time_point until) {

@@ -53,6 +53,7 @@
 
 #include "ecar_bridge/topics.h"
 #include "ecar_core/io/dataset.h"
+#include "playback_clock.h"
 
 namespace ecar_sim {
 
@@ -128,8 +129,6 @@ class DatasetPlayer {
   void waitForSubscribers();
   /// Sleeps until `until` (servicing callbacks); false when ROS shut down.
   bool sleepUntil(Clock::time_point until);
-  /// When a frame stamped `timestamp` is due on the playback clock (rate > 0).
-  Clock::time_point dueAt(double timestamp) const;
   /// Waits for a frame_done >= seq, at most ~ack_timeout; false on timeout.
   bool waitForAck(uint32_t seq);
   void onFrameDone(const std_msgs::UInt32& msg);
@@ -154,9 +153,8 @@ class DatasetPlayer {
   // that run inside its ros::spinOnce() calls.
   uint32_t image_seq_ = 0;  ///< header.seq of the next image (= roscpp's counter)
   size_t imu_cursor_ = 0;   ///< next IMU sample to publish
-  /// Wall time and dataset time that the schedule of the current pass runs from.
-  Clock::time_point anchor_wall_;
-  double anchor_t_ = 0.0;
+  /// When each frame of the current pass is due (used when ~rate > 0).
+  PlaybackClock clock_;
   /// Stamp and dataset time of the previous published frame of the pass.
   std::optional<std::pair<ros::Time, double>> previous_;
   /// Largest frame_done received (image seqs only grow, so this never resets).

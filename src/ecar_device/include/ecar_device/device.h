@@ -139,7 +139,11 @@ class Device {
   void onTouch(const ecar_msgs::TouchConstPtr& msg);
   void onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg);
   void onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg);
+  /// A connection attempt (from the connection thread), then the frame held
+  /// for it, if any, goes on.
   void onConnectTimer();
+  /// Calls ~connect_service when not connected (or silent too long).
+  void connect();
   void onPaceTimer();
   /// dynamic_reconfigure: every, jpeg_quality, the ar_view drawing options.
   void onReconfigure(const DeviceTuningConfig& tuning);
@@ -152,8 +156,15 @@ class Device {
   void publishHeldUpload();
   void publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
                      const ecar::DeviceTrackResult& result, bool uploaded);
-  /// frame_done now, or held while ~pace_in_flight uploads are in flight.
+  /// frame_done now, or held while ~pace_in_flight uploads are in flight or
+  /// while the connection asked for by a new camera_info is being made.
   void frameDone(uint32_t seq);
+  /// Whether a frame_done waits now: a connection asked for by a new
+  /// camera_info is being made (connect_requested_), or ~pace_in_flight uploads younger than
+  /// ~pace_timeout wait for their graph.
+  bool holdsFrames() const;
+  /// Whether the server subscribes to our uploads and we to its local graphs.
+  bool linkedToServer() const;
   void releaseFrameDone(bool force);
   /// Drops pending frames older than ~reconnect_timeout (their graph is lost).
   void prunePending(const ros::Time& now);
@@ -178,6 +189,10 @@ class Device {
   bool odometry_seen_ = false;
   std::optional<ecar_msgs::Upload> held_upload_;  ///< waiting for its odometry
   bool connected_ = false;
+  /// A new camera_info asked the connection thread to connect now; when paced,
+  /// frames wait for that attempt and for the topics to be joined both ways
+  /// (linkedToServer; else the first uploads go unsent), ~pace_timeout at most.
+  bool connect_requested_ = false;
   bool has_epoch_ = false;
   uint32_t epoch_ = 0;
   uint32_t map_id_ = 0;            ///< the server map of the last graph (0: none yet)
@@ -185,7 +200,9 @@ class Device {
   uint32_t last_reset_frame_ = 0;  ///< frame of the last upload with reset
   uint32_t last_graph_frame_ = 0;
   ros::WallTime last_progress_;  ///< connection or last local graph
-  bool uploaded_since_progress_ = false;
+  /// An upload was due since last_progress_ (sent, or not sent because the
+  /// server had not joined our topics): silence then means a lost server.
+  bool upload_due_since_progress_ = false;
   std::string upload_topic_, local_graph_topic_;
   std::deque<Pending> pending_;
   std::vector<cv::Mat> free_images_;  ///< buffers of released pending frames

@@ -202,3 +202,14 @@ class Collector(Records):
                     queue_size=1000),
                 sub("/%s/player/finished" % d, Bool, self.on_finished, callback_args=d,
                     queue_size=1)]
+        # What the devices publish from their first frame on: the players start once these
+        # subscriptions are connected, or those frames would be missing from the records.
+        self.device_subs = [(s, 1) for s in self.subs
+                            if s.name.endswith("/device_frame")]
+        self.device_subs.append((self.subs[0], len(devices)))
+
+    def unconnected(self):
+        """Topics of the devices that this collector is not yet connected to, each with how
+        many of its publishers are connected and how many are awaited."""
+        return ["%s (%d of %d)" % (s.name, s.get_num_connections(), n)
+                for s, n in self.device_subs if s.get_num_connections() < n]

@@ -23,7 +23,7 @@ from ecar_sim.session.report import log, print_summary, progress_line
 PROGRESS_PERIOD_S = 5.0  # between progress lines during playback
 SETTLE_S = 3.0  # quiet time after every player finished before the session ends
 MASTER_TIMEOUT_S = 30.0
-CONNECT_TIMEOUT_S = 60.0  # for the server's /ecar/connect
+CONNECT_TIMEOUT_S = 60.0  # for the server's /ecar/connect, and for the devices' topics
 POLL_S = 0.5
 
 
@@ -121,6 +121,14 @@ def play(args, hosts, envs, devices, datasets, procs, collector, frames, fps, ti
     """Starts the players (on the devices host) and waits until every dataset has played and
     the last messages are in; returns (wall seconds, finished in time). Raises ChildDied when
     a child dies."""
+    deadline = time.time() + CONNECT_TIMEOUT_S
+    while collector.unconnected():
+        procs.check()
+        if time.time() > deadline:
+            raise RuntimeError("not connected to the devices' %s within %.0f s (see %s)" %
+                               (", ".join(collector.unconnected()), CONNECT_TIMEOUT_S,
+                                procs.log_dir))
+        time.sleep(0.05)
     log("server up; playing %d device(s)" % len(devices))
     start = time.time()
     for d in devices:
