@@ -31,6 +31,7 @@ check demo.launch 15 datasets:=/tmp
 check demo.launch 14 datasets:=/tmp rviz:=false
 check demo.launch 16 datasets:=/tmp devices:=3 rviz:=false
 check replay.launch 11 bag:=/tmp/x.bag
+check light_devices.launch 4 devices:=device_0,device_1,device_2 datasets:=/tmp/a,/tmp/b,/tmp/c
 
 expect() {  # expect WHAT PATTERN OUTPUT
   if grep -q -- "$2" <<<"$3"; then echo "  ok   $1"; else
@@ -43,6 +44,9 @@ expect "demo.launch: rviz for those devices" "--devices device_0,device_2" \
 expect "multi_device.launch plays each device's dataset" "/tmp/corridor_device_2_f9" \
   "$(roslaunch --dump-params "$ROOT/launch/multi_device.launch" devices:=device_0,device_2 \
      datasets:=/tmp suffix:=_f9 2>&1)"
+expect "light_devices.launch gives each device its dataset" "/device_2/device/light/dataset: /tmp/c" \
+  "$(roslaunch --dump-params "$ROOT/launch/light_devices.launch" devices:=device_0,device_1,device_2 \
+     datasets:=/tmp/a,/tmp/b,/tmp/c 2>&1)"
 expect "replay.launch plays with --clock" "--clock --hz=1000" \
   "$(roslaunch --args device_0_bag "$ROOT/launch/replay.launch" bag:=/tmp/x.bag 2>&1)"
 expect "replay.launch sets /use_sim_time" "/use_sim_time: true" \

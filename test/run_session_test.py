@@ -4,6 +4,7 @@
 - Relative paths (--scene, --datasets, --out) from another directory than the repository:
   the 40-frame session of device_0 renders its dataset where the user stands, completes, and
   the device gets local graphs (the players used to die at once on a relative --datasets).
+- Two light devices (--light) play their uploads from the JPEG cache and get every graph.
 - A dataset folder the player cannot read (camera.yaml broken, the rest as run_session
   reuses it): the session ends within 30 s with exit status 2 and an error naming the player
   and quoting its log (it used to wait ~3 minutes and report "could not keep up").
@@ -72,6 +73,30 @@ class RunSessionTest(unittest.TestCase):
             self.assertTrue(os.path.exists(os.path.join(out, name)), name)
         self.assertIn("[run_session] wrote %s/summary.json and %s/metrics.csv" % (out, out), lines)
         self.assertFalse(any("error" in line for line in lines), lines)
+
+    def test_light_devices(self):
+        # Two light devices in one nodelet manager, no players: each plays its dataset's
+        # uploads (encoded into <dataset>/jpeg_q70 on first use) and tracks those frames.
+        code, lines, seconds = run_session(self.cwd, [
+            "--scene", SCENE, "--device-names", "device_0,device_1", "--frames", str(FRAMES),
+            "--datasets", "datasets", "--out", "session", "--light"], timeout=150)
+        self.assertEqual(code, 0, "run_session failed after %.0f s" % seconds)
+        with open(os.path.join(self.cwd, "session", "summary.json")) as f:
+            summary = json.load(f)
+        self.assertTrue(summary["light"])
+        for name in ("device_0", "device_1"):
+            d = summary["per_device"][name]
+            # Every 4th frame of 40, each uploaded and answered (the session starts once
+            # the devices are joined to the server).
+            self.assertEqual(d["uploads"], FRAMES // 4, name)
+            self.assertEqual(d["frames"], FRAMES // 4, name)
+            self.assertIsNone(d["frames_skipped"])
+            self.assertEqual(d["graphs_received"], FRAMES // 4, name)
+            cache = os.path.join(d["dataset"], "jpeg_q70")
+            self.assertEqual(len(os.listdir(cache)), FRAMES // 4, cache)
+        self.assertFalse(os.path.exists(os.path.join(self.cwd, "session",
+                                                     "session_players.launch")))
+        self.assertIn("[run_session] server up; playing 2 light device(s)", lines)
 
     def test_a_player_that_dies_ends_the_session(self):
         # A dataset as run_session reuses it (frames, ground truth, scene digest) whose camera

@@ -31,9 +31,8 @@
 namespace ecar_device {
 namespace {
 
+using device_internal::kOdometryKept;
 using device_internal::kWarnPeriod;
-
-constexpr size_t kOdometryKept = 64;
 
 const char* stateName(ecar::TrackingState s) { return ecar::toString(s); }
 
@@ -80,19 +79,7 @@ Device::Device(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const Devi
       nh_.advertise<ecar_msgs::RoundTripMetrics>(config_.global_metrics_topic, 30);
   ar_view_pub_ = image_transport_.advertise("ar_view", 1);
   frame_done_pub_ = nh_.advertise<std_msgs::UInt32>("frame_done", 10);
-  info_sub_ = nh_.subscribe("camera/camera_info", 1, &Device::onCameraInfo, this);
-  imu_sub_ = nh_.subscribe("imu", 50, &Device::onImu, this);
-  odometry_sub_ = nh_.subscribe("odometry", 10, &Device::onOdometry, this);
-  // A short queue: when tracking falls behind the camera, old frames go. The
-  // transport is image_transport's (~image_transport: raw, compressed, ...).
-  try {
-    image_sub_ = image_transport_.subscribe(
-        "camera/image_raw", 2, &Device::onImage, this,
-        image_transport::TransportHints(config_.image_transport, ros::TransportHints(), pnh_));
-  } catch (const image_transport::TransportLoadException& e) {
-    throw ecar::Error("image_transport \"" + config_.image_transport +
-                      "\" cannot be loaded (raw and compressed are installed): " + e.what());
-  }
+  if (config_.light.dataset.empty()) subscribeCamera();
   if (config_.pace_in_flight > 0) {
     pace_timer_ = nh_.createSteadyTimer(ros::WallDuration(0.01),
                                         [this](const ros::SteadyTimerEvent&) { onPaceTimer(); });
@@ -118,9 +105,27 @@ Device::Device(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const Devi
                                     [this](const ros::SteadyTimerEvent&) { onConnectTimer(); });
   connect_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &connect_queue_);
   connect_spinner_->start();
+  if (!config_.light.dataset.empty()) startLight();
   ROS_INFO("%s: device up (every %d, JPEG %d, sync_mode \"%s\", keyframe queue %d)",
            config_.device_id.c_str(), config_.every, config_.jpeg_quality,
            config_.sync_mode.c_str(), config_.tracker.keyframe_queue);
+}
+
+void Device::subscribeCamera() {
+  info_sub_ = nh_.subscribe("camera/camera_info", 1, &Device::onCameraInfo, this);
+  imu_sub_ = nh_.subscribe("imu", 50, &Device::onImu, this);
+  odometry_sub_ = nh_.subscribe("odometry", 10, &Device::onOdometry, this);
+  // One frame queued, as behind a camera's driver: while tracking is busy, the
+  // frames that come go but the newest (the gap in header.seq is reported).
+  // The transport is image_transport's (~image_transport: raw, compressed, ...).
+  try {
+    image_sub_ = image_transport_.subscribe(
+        "camera/image_raw", 1, &Device::onImage, this,
+        image_transport::TransportHints(config_.image_transport, ros::TransportHints(), pnh_));
+  } catch (const image_transport::TransportLoadException& e) {
+    throw ecar::Error("image_transport \"" + config_.image_transport +
+                      "\" cannot be loaded (raw and compressed are installed): " + e.what());
+  }
 }
 
 void Device::onReconfigure(const DeviceTuningConfig& tuning) {
@@ -142,6 +147,7 @@ Device::~Device() {
   connect_timer_.stop();
   if (connect_spinner_) connect_spinner_->stop();
   pace_timer_.stop();
+  light_timer_.stop();
 }
 
 // ---------------------------------------------------------------- sensors
@@ -246,12 +252,13 @@ void Device::onImage(const sensor_msgs::ImageConstPtr& msg) {
   prunePending(now);
 
   bool uploaded = false;
-  if (connected_ && seq % static_cast<uint32_t>(config_.every) == 0) {
+  if (connected_ && upload_schedule_.due(seq, config_.every)) {
     // The topics are joined on our connection: until they are, an upload or
     // its graph would go nowhere and hold the pacing for nothing.
     if (linkedToServer()) {
-      upload(gray, *msg);
+      upload(gray, msg->header);
       uploaded = true;
+      upload_schedule_.uploaded(seq, config_.every);
     } else {
       upload_due_since_progress_ = true;  // a server gone for good: connect again
       ROS_WARN_THROTTLE(kWarnPeriod,
@@ -265,7 +272,7 @@ void Device::onImage(const sensor_msgs::ImageConstPtr& msg) {
   if (uploaded && !pending_.empty() && pending_.back().frame_index == seq) {
     pending_.back().tracking_time = static_cast<float>(r.total_ms / 1000.0);
   }
-  publishResult(*msg, gray, r, uploaded);
+  publishResult(msg->header, gray, r, uploaded);
   const double behind = (ros::Time::now() - msg->header.stamp).toSec();
   if (behind > 0.5) {
     ROS_WARN_THROTTLE(kWarnPeriod, "%s: falling behind the camera: frame %u done %.2f s late",
@@ -274,17 +281,22 @@ void Device::onImage(const sensor_msgs::ImageConstPtr& msg) {
   frameDone(seq);
 }
 
-void Device::upload(const cv::Mat& gray, const sensor_msgs::Image& image) {
+void Device::upload(const cv::Mat& gray, const std_msgs::Header& header,
+                    const std::vector<uint8_t>* jpeg) {
   ecar_bridge::UploadContent c;
   c.device_id = config_.device_id;
   c.camera_frame = camera_frame_;
-  c.frame_index = image.header.seq;
-  c.stamp = image.header.stamp;
-  cv::imencode(".jpg", gray, jpeg_, {cv::IMWRITE_JPEG_QUALITY, config_.jpeg_quality});
-  c.jpeg = jpeg_;
+  c.frame_index = header.seq;
+  c.stamp = header.stamp;
+  if (jpeg) {
+    c.jpeg = *jpeg;
+  } else {
+    cv::imencode(".jpg", gray, jpeg_, {cv::IMWRITE_JPEG_QUALITY, config_.jpeg_quality});
+    c.jpeg = jpeg_;
+  }
   c.gravity_c = gravity_c_;
   for (auto it = odometry_.rbegin(); it != odometry_.rend(); ++it) {
-    if (it->first == image.header.stamp) {
+    if (it->first == header.stamp) {
       c.T_o_c = it->second;
       break;
     }
@@ -329,20 +341,20 @@ void Device::publishHeldUpload() {
   upload_due_since_progress_ = true;
 }
 
-void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
+void Device::publishResult(const std_msgs::Header& image_header, const cv::Mat& gray,
                            const ecar::DeviceTrackResult& r, bool uploaded) {
   device_frame_pub_.publish(ecar_bridge::toMsg(
-      config_.device_id, image.header.stamp, config_.map_frame, r,
+      config_.device_id, image_header.stamp, config_.map_frame, r,
       static_cast<uint32_t>(tracker_->numKeyFrames()), static_cast<uint32_t>(tracker_->numPoints()),
       uploaded, objects_.objects()));
   std_msgs::Header header;
-  header.stamp = image.header.stamp;
+  header.stamp = image_header.stamp;
   header.frame_id = config_.map_frame;
   tracking_ok_ = r.state == ecar::TrackingState::kOk;
-  last_image_stamp_ = image.header.stamp;
+  last_image_stamp_ = image_header.stamp;
   if (tracking_ok_) {
     T_w_c_ = r.T_w_c;
-    pose_stamp_ = image.header.stamp;
+    pose_stamp_ = image_header.stamp;
   }
   if (r.state == ecar::TrackingState::kOk) {
     geometry_msgs::PoseStamped pose;
@@ -361,11 +373,11 @@ void Device::publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
   }
   // VOs at the pose touches use (this frame's when tracked), unless it is stale.
   if (config_.ar_view.draw_objects && T_w_c_ &&
-      (image.header.stamp - pose_stamp_).toSec() <= config_.touch_pose_timeout) {
+      (image_header.stamp - pose_stamp_).toSec() <= config_.touch_pose_timeout) {
     drawObjects(*T_w_c_);
   }
   if (config_.ar_view.draw_status) drawStatus(r);
-  std_msgs::Header view_header = image.header;
+  std_msgs::Header view_header = image_header;
   view_header.frame_id = camera_frame_;
   ar_view_pub_.publish(cv_bridge::CvImage(view_header, "bgr8", ar_image_).toImageMsg());
 }

@@ -50,6 +50,11 @@ void DeviceConfig::validate() const {
   if (!std::isfinite(touch_pose_timeout) || touch_pose_timeout <= 0.0) {
     fail("touch_pose_timeout", "must be > 0 s");
   }
+  if (!std::isfinite(light.rate) || light.rate <= 0.0) fail("light/rate", "must be > 0");
+  if (light.max_frames < 0) fail("light/max_frames", "must be >= 0 (0 = all frames)");
+  if (!std::isfinite(light.wait_subscribers) || light.wait_subscribers < 0.0) {
+    fail("light/wait_subscribers", "must be >= 0 s");
+  }
   try {
     objects.validate();
   } catch (const ecar::Error& e) {
@@ -115,6 +120,12 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   v.read("boundary_margin", &c.objects.boundary_margin);
   v.read("near_clip", &c.objects.near_clip);
   v.read("max_thickness_px", &c.objects.max_thickness_px);
+  ecar_bridge::ParamReader& l = r.child("light");
+  l.read("dataset", &c.light.dataset);
+  l.read("rate", &c.light.rate);
+  l.read("max_frames", &c.light.max_frames);
+  l.read("cache_dir", &c.light.cache_dir);
+  l.read("wait_subscribers", &c.light.wait_subscribers);
   if (unknown) *unknown = r.unknown();
   c.validate();
   return c;

@@ -91,6 +91,12 @@ TEST(DeviceConfigTest, BadValuesNameTheParameter) {
   p = XmlRpc::XmlRpcValue();
   p["objects"]["pick_radius"] = std::string("wide");
   EXPECT_NE(errorOf(p).find("~objects/pick_radius"), std::string::npos) << errorOf(p);
+  p = XmlRpc::XmlRpcValue();
+  p["light"]["rate"] = 0.0;
+  EXPECT_NE(errorOf(p).find("~light/rate"), std::string::npos) << errorOf(p);
+  p = XmlRpc::XmlRpcValue();
+  p["light"]["wait_subscribers"] = -1.0;
+  EXPECT_NE(errorOf(p).find("~light/wait_subscribers"), std::string::npos) << errorOf(p);
 }
 
 }  // namespace

@@ -230,9 +230,14 @@ class DeviceTest(unittest.TestCase):
         self.assertEqual(connect_req.keyframe_queue, 10)
         self.assertEqual(connect_req.camera_info.width, 640)
         self.assertTrue(uploads[0].reset)
+        # One upload per slot of 4 frames: the first comes with the first frame after the
+        # server joined the device's topics (any frame of its slot), the rest on time.
+        slots = [u.frame_index // 4 for u in uploads]
+        self.assertEqual(len(set(slots)), len(slots), [u.frame_index for u in uploads])
+        for u in uploads[1:]:
+            self.assertEqual(u.frame_index % 4, 0, "frame %d uploaded" % u.frame_index)
         for u in uploads:
             self.assertEqual(u.device_id, self.device)
-            self.assertEqual(u.frame_index % 4, 0, "frame %d uploaded" % u.frame_index)
             self.assertEqual(u.image.format, "jpeg")
             self.assertEqual(jpeg_size(u.image.data), (640, 480))
             self.assertTrue(u.has_gravity)

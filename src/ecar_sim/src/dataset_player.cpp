@@ -24,6 +24,11 @@ namespace {
 /// Longest sleep between two checks of ros::ok() and the callback queue.
 constexpr std::chrono::milliseconds kPollPeriod(5);
 
+/// cv::imread flags of the played images: as stored, or gray (~grayscale).
+int imreadFlags(bool grayscale) {
+  return grayscale ? cv::IMREAD_GRAYSCALE : cv::IMREAD_ANYCOLOR | cv::IMREAD_ANYDEPTH;
+}
+
 /// An IMU sample up to this much after a frame's stamp goes with that frame:
 /// dataset lists round stamps differently (rgb.txt to 1 us, imu.txt to 1 ns),
 /// so the sample taken with an image can read a few hundred ns later.
@@ -98,6 +103,7 @@ void DatasetPlayerConfig::validate() const {
   if (!std::isfinite(touch_settle) || touch_settle < 0.0) fail("touch_settle", "must be >= 0 s");
   if (first_frame < 0) fail("first_frame", "must be >= 0");
   if (max_frames < 0) fail("max_frames", "must be >= 0 (0 = all frames)");
+  if (preload_mb < 0) fail("preload_mb", "must be >= 0 (0 = decode each frame when due)");
 }
 
 DatasetPlayerConfig loadDatasetPlayerConfig(const ros::NodeHandle& pnh) {
@@ -126,6 +132,7 @@ DatasetPlayerConfig loadDatasetPlayerConfig(const ros::NodeHandle& pnh) {
   readParam(pnh, "loop", "a bool", &c.loop);
   readParam(pnh, "grayscale", "a bool", &c.grayscale);
   readParam(pnh, "shutdown_when_done", "a bool", &c.shutdown_when_done);
+  readParam(pnh, "preload_mb", "an integer", &c.preload_mb);
   c.validate();
   return c;
 }
@@ -171,6 +178,7 @@ size_t DatasetPlayer::run() {
              touch_pub_.getTopic().c_str());
   }
 
+  preload(begin, begin + count);
   waitForSubscribers();
   const Clock::time_point start = Clock::now();
   size_t published = 0;
@@ -198,6 +206,38 @@ size_t DatasetPlayer::run() {
   return published;
 }
 
+void DatasetPlayer::preload(size_t begin, size_t end) {
+  if (config_.preload_mb == 0) return;
+  const Clock::time_point start = Clock::now();
+  const size_t budget = static_cast<size_t>(config_.preload_mb) << 20;
+  preloaded_.assign(end, cv::Mat());
+  size_t bytes = 0, frames = 0;
+  for (size_t i = begin; i < end && ros::ok(); ++i) {
+    cv::Mat decoded;
+    try {
+      decoded = dataset_.loadImage(i, imreadFlags(config_.grayscale));
+    } catch (const ecar::Error&) {
+      continue;  // reported (and skipped) when due
+    }
+    const size_t size = decoded.total() * decoded.elemSize();
+    if (bytes + size > budget) {
+      ROS_WARN("%s: ~preload_mb %d holds frames %zu..%zu; the rest are decoded when due",
+               config_.device.c_str(), config_.preload_mb, begin, i - 1);
+      break;
+    }
+    bytes += size;
+    ++frames;
+    preloaded_[i] = std::move(decoded);
+  }
+  ROS_INFO("%s: preloaded %zu frames (%.0f MB) in %.2f s", config_.device.c_str(), frames,
+           bytes / 1048576.0, std::chrono::duration<double>(Clock::now() - start).count());
+}
+
+cv::Mat DatasetPlayer::image(size_t i) const {
+  if (i < preloaded_.size() && !preloaded_[i].empty()) return preloaded_[i];
+  return dataset_.loadImage(i, imreadFlags(config_.grayscale));
+}
+
 size_t DatasetPlayer::playPass(size_t begin, size_t end) {
   // IMU samples after the frame before `begin` belong to this pass.
   imu_cursor_ = 0;
@@ -217,8 +257,7 @@ size_t DatasetPlayer::playPass(size_t begin, size_t end) {
     const ecar::DatasetFrame& frame = dataset_.frame(i);
     cv::Mat image;
     try {
-      image = dataset_.loadImage(
-          i, config_.grayscale ? cv::IMREAD_GRAYSCALE : cv::IMREAD_ANYCOLOR | cv::IMREAD_ANYDEPTH);
+      image = this->image(i);
     } catch (const ecar::Error& e) {
       const std::string why = e.what();
       ROS_WARN("%s: skipping frame %zu, unreadable image: %s", config_.device.c_str(), i,

@@ -84,6 +84,10 @@ struct DatasetPlayerConfig {
   bool loop = false;                ///< ~loop: start over after the last frame
   bool grayscale = false;           ///< ~grayscale: publish mono8 whatever the files hold
   bool shutdown_when_done = false;  ///< ~shutdown_when_done: ros::shutdown() after the last frame
+  /// ~preload_mb: decode the played frames before the first one, up to this
+  /// many MB of images (the rest are decoded when due); 0 = decode each frame
+  /// when it is due. Decoding a PNG costs more than playing it.
+  int preload_mb = 1024;
 
   /// Throws ecar::Error naming the parameter (e.g. "~rate") of the first bad value.
   void validate() const;
@@ -112,6 +116,10 @@ class DatasetPlayer {
  private:
   using Clock = std::chrono::steady_clock;
 
+  /// Decodes frames [begin, end) into preloaded_ within ~preload_mb.
+  void preload(size_t begin, size_t end);
+  /// Frame i, preloaded or read now; throws ecar::Error when unreadable.
+  cv::Mat image(size_t i) const;
   /// Plays frames [begin, end) once; returns how many were published.
   size_t playPass(size_t begin, size_t end);
   /// Publishes frame i (image already loaded); returns its header.
@@ -153,6 +161,8 @@ class DatasetPlayer {
   // that run inside its ros::spinOnce() calls.
   uint32_t image_seq_ = 0;  ///< header.seq of the next image (= roscpp's counter)
   size_t imu_cursor_ = 0;   ///< next IMU sample to publish
+  /// Decoded frames by index (empty Mats: not preloaded).
+  std::vector<cv::Mat> preloaded_;
   /// When each frame of the current pass is due (used when ~rate > 0).
   PlaybackClock clock_;
   /// Stamp and dataset time of the previous published frame of the pass.

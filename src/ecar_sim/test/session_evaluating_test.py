@@ -197,10 +197,15 @@ class PacingTest(unittest.TestCase):
 
     def test_note(self):
         p = ev.pacing_summary(1.0, 0.4321, 20.04)
-        self.assertEqual(p, {"requested_rate": 1.0, "achieved_rate": 0.432, "kept_up": False,
-                             "wall_seconds": 20.0,
+        self.assertEqual(p, {"pacing": "lockstep", "requested_rate": 1.0, "achieved_rate": 0.432,
+                             "kept_up": False, "frames_skipped": 0, "wall_seconds": 20.0,
                              "note": "the machine could not keep up at rate 1: the round trips "
                                      "paced playback to 0.43x real time"})
+        self.assertEqual(ev.pacing_summary(1.0, 0.97, 20.0, "camera", 31)["note"],
+                         "playback kept the requested rate; the devices skipped 31 frames they "
+                         "were too busy for")
+        self.assertIn("the players paced playback to 0.50x",
+                      ev.pacing_summary(1.0, 0.5, 20.0, "camera", 0)["note"])
         self.assertTrue(ev.pacing_summary(0.5, 0.46, 1.0)["kept_up"])
         self.assertEqual(ev.pacing_summary(0.5, 0.46, 1.0)["note"],
                          "playback kept the requested rate")

@@ -130,7 +130,8 @@ class ChildTest(unittest.TestCase):
 class LaunchTest(unittest.TestCase):
     ARGS = types.SimpleNamespace(sync_mode="ecar", workers=2, server_config="", vo_attach="grid",
                                  vo_share="graph", out="/o", every=4, jpeg_quality=70,
-                                 in_flight=1, rate=0.5)
+                                 in_flight=1, rate=0.5, pacing="lockstep", light=False)
+    CAMERA = types.SimpleNamespace(**dict(vars(ARGS), pacing="camera"))
 
     def test_player_command(self):
         inc = launching.player_include(self.ARGS, "device_0", "/data/corridor_device_0")
@@ -139,6 +140,22 @@ class LaunchTest(unittest.TestCase):
         self.assertIn(os.path.join(REPO_ROOT, "launch", "player.launch"), cmd)
         for arg in ("dataset:=/data/corridor_device_0", "device:=device_0", "rate:=0.5",
                     "pace_by_consumer:=true", "output:=screen"):
+            self.assertIn(arg, cmd)
+
+    def test_camera_pacing(self):
+        # The player keeps its rate, the device never holds a frame_done.
+        player = launching.player_include(self.CAMERA, "device_0", "/d").command()
+        self.assertIn("pace_by_consumer:=false", player)
+        self.assertIn("rate:=0.5", player)
+        self.assertIn("pace_in_flight:=0", launching.device_include(self.CAMERA, "d").command())
+
+    def test_light_devices(self):
+        inc = launching.light_devices_include(self.CAMERA, ["device_0", "device_3"],
+                                              {"device_0": "/d/0", "device_3": "/d/3"})
+        cmd = inc.command()
+        self.assertIn(os.path.join(REPO_ROOT, "launch", "light_devices.launch"), cmd)
+        for arg in ("devices:=device_0,device_3", "datasets:=/d/0,/d/3", "rate:=0.5",
+                    "every:=4", "jpeg_quality:=70", "sync_mode:=ecar"):
             self.assertIn(arg, cmd)
 
     def test_server_and_device(self):

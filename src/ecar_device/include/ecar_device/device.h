@@ -58,7 +58,9 @@
 #include "ecar_core/common/camera.h"
 #include "ecar_core/device/device_objects.h"
 #include "ecar_core/device/device_tracker.h"
+#include "ecar_core/device/upload_cache.h"
 #include "ecar_device/DeviceTuningConfig.h"
+#include "ecar_device/upload_schedule.h"
 
 namespace ecar_device {
 
@@ -94,6 +96,18 @@ struct DeviceConfig {
   } ar_view;
   ecar::DeviceTrackerConfig tracker;  ///< ~keyframe_queue, ~tracking/..., ~orb/...
   ecar::DeviceObjectsConfig objects;  ///< ~objects/... (touches, VOs, drawing)
+  /// A light device (the paper's device simulator): no camera topics; it plays
+  /// the uploads of a dataset (ecar::UploadCache: JPEGs encoded once) at
+  /// ~light/rate, uploads them as a device does and tracks only those frames.
+  struct Light {
+    std::string dataset;    ///< ~light/dataset: "" = a full device on its camera topics
+    double rate = 1.0;      ///< ~light/rate: playback speed (> 0)
+    int max_frames = 0;     ///< ~light/max_frames: frames of the dataset played (0 = all)
+    std::string cache_dir;  ///< ~light/cache_dir: "" = <dataset>/jpeg_q<jpeg_quality>
+    /// ~light/wait_subscribers: s to wait, once joined to the server, for a
+    /// subscriber on device_frame and on the metrics topic before playing (>= 0)
+    double wait_subscribers = 5.0;
+  } light;
 
   /// Throws ecar::Error naming the parameter (e.g. "~every") of the first bad value.
   void validate() const;
@@ -142,6 +156,14 @@ class Device {
   /// A connection attempt (from the connection thread), then the frame held
   /// for it, if any, goes on.
   void onConnectTimer();
+  /// A full device's camera, IMU and odometry subscriptions.
+  void subscribeCamera();
+  // A light device (device_light.cpp).
+  /// Builds the upload cache and the camera, then starts the playback timer.
+  void startLight();
+  /// Plays the next cached upload once the server is joined: uploads it and
+  /// tracks it; after the last one publishes player/finished.
+  void onLightTimer();
   /// Calls ~connect_service when not connected (or silent too long).
   void connect();
   void onPaceTimer();
@@ -149,12 +171,14 @@ class Device {
   void onReconfigure(const DeviceTuningConfig& tuning);
 
   // The following helpers need mutex_ held.
-  /// JPEG-encodes an upload of `gray` and keeps the frame pending; publishes
-  /// it at once, or holds it until the odometry with the image's stamp comes.
-  void upload(const cv::Mat& gray, const sensor_msgs::Image& image);
+  /// JPEG-encodes an upload of `gray` (or takes `jpeg`, already encoded) and
+  /// keeps the frame pending; publishes it at once, or holds it until the
+  /// odometry with the image's stamp comes.
+  void upload(const cv::Mat& gray, const std_msgs::Header& header,
+              const std::vector<uint8_t>* jpeg = nullptr);
   /// Publishes the held upload (sent = now) and records its bytes.
   void publishHeldUpload();
-  void publishResult(const sensor_msgs::Image& image, const cv::Mat& gray,
+  void publishResult(const std_msgs::Header& image_header, const cv::Mat& gray,
                      const ecar::DeviceTrackResult& result, bool uploaded);
   /// frame_done now, or held while ~pace_in_flight uploads are in flight or
   /// while the connection asked for by a new camera_info is being made.
@@ -206,6 +230,7 @@ class Device {
   std::string upload_topic_, local_graph_topic_;
   std::deque<Pending> pending_;
   std::vector<cv::Mat> free_images_;  ///< buffers of released pending frames
+  UploadSchedule upload_schedule_;
   bool has_last_seq_ = false;
   uint32_t last_seq_ = 0;
   std::optional<uint32_t> held_done_;
@@ -243,6 +268,14 @@ class Device {
   ros::NodeHandle connect_nh_;
   ros::SteadyTimer connect_timer_;
   std::unique_ptr<ros::AsyncSpinner> connect_spinner_;
+  // A light device's playback (~light/dataset); touched on its timer only.
+  std::optional<ecar::UploadCache> light_cache_;
+  size_t light_next_ = 0;  ///< index into light_cache_->uploads()
+  bool light_started_ = false;
+  ros::WallTime light_joined_;  ///< when the server joined our topics (0: not yet)
+  cv::Mat light_gray_;
+  ros::SteadyTimer light_timer_;
+  ros::Publisher light_finished_pub_;
 };
 
 }  // namespace ecar_device

@@ -188,7 +188,9 @@ class Records:
 class Collector(Records):
     """Records filled from the session's topics (rospy must be initialised)."""
 
-    def __init__(self, devices):
+    def __init__(self, devices, metrics_publishers=None):
+        """metrics_publishers: the nodes publishing /ecar/metrics (default one per device;
+        light devices share one nodelet manager)."""
         super().__init__(devices)
         sub = rospy.Subscriber
         self.subs = [sub("/ecar/metrics", RoundTripMetrics, self.on_metrics, queue_size=1000),
@@ -206,7 +208,7 @@ class Collector(Records):
         # subscriptions are connected, or those frames would be missing from the records.
         self.device_subs = [(s, 1) for s in self.subs
                             if s.name.endswith("/device_frame")]
-        self.device_subs.append((self.subs[0], len(devices)))
+        self.device_subs.append((self.subs[0], metrics_publishers or len(devices)))
 
     def unconnected(self):
         """Topics of the devices that this collector is not yet connected to, each with how

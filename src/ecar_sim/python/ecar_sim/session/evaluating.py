@@ -76,11 +76,14 @@ def rotation_angle_deg(q1, q2):
     return math.degrees(2.0 * math.acos(min(1.0, dot)))
 
 
-def device_summary(device, dataset, records, traj_dir, env, ate_rmse=ate, final=None):
+def device_summary(device, dataset, records, traj_dir, env, ate_rmse=ate, final=None,
+                   uploads_only=False):
     """summary.json's per_device entry of one device; writes its trajectories (device and
     server estimates, ground truth copied) into traj_dir. ate_rmse(gt, est, env, sim3) gives
     the ATE (ecar_eval_traj by default). The pose metrics use the device's frames in the
-    session's final map `final` (session.maps; all frames for records without map ids)."""
+    session's final map `final` (session.maps; all frames for records without map ids).
+    uploads_only: a light device, which takes only the frames it uploads (frames_skipped is
+    then None)."""
     frames = records.device_frames.get(device, {})
     in_final = maps.frames_of(records, device, final)
     all_server = records.server_poses[device]
@@ -108,6 +111,7 @@ def device_summary(device, dataset, records, traj_dir, env, ate_rmse=ate, final=
     return {
         "dataset": dataset,
         "frames": len(frames),
+        "frames_skipped": None if uploads_only else max(0, len(times) - len(frames)),
         "uploads": uploads,
         "graphs_received": records.graphs[device],
         "graphs_with_pose": len(server),
@@ -168,19 +172,29 @@ def playback_rate(spans, fps):
     return min(rates) if rates else None
 
 
-def pacing_summary(requested, achieved, wall_seconds):
+def pacing_summary(requested, achieved, wall_seconds, pacing="lockstep", skipped=0):
     """summary.json's pacing entry: did playback keep the requested rate (within 10 %)?
-    achieved is playback_rate's (None counts as 0)."""
+    achieved is playback_rate's (None counts as 0); pacing is run_session's --pacing and
+    skipped the frames the devices skipped in all."""
     rate = achieved or 0.0
     kept_up = rate >= 0.9 * requested
+    if not kept_up:
+        note = ("the machine could not keep up at rate %g: %s paced playback to %.2fx real time"
+                % (requested, "the round trips" if pacing == "lockstep" else "the players",
+                   rate))
+    elif pacing == "camera" and skipped:
+        note = ("playback kept the requested rate; the devices skipped %d frames they were too "
+                "busy for" % skipped)
+    else:
+        note = "playback kept the requested rate"
     return {
+        "pacing": pacing,
         "requested_rate": requested,
         "achieved_rate": rnd(rate, 3),
         "kept_up": kept_up,
+        "frames_skipped": skipped,
         "wall_seconds": rnd(wall_seconds, 1),
-        "note": ("playback kept the requested rate" if kept_up else
-                 "the machine could not keep up at rate %g: the round trips paced playback to "
-                 "%.2fx real time" % (requested, rate)),
+        "note": note,
     }
 
 
@@ -205,6 +219,7 @@ def build_summary(args, devices, pacing, per_device, overall, vo, planes, link=N
     return {
         "scene": args.scene, "devices": devices, "sync_mode": args.sync_mode,
         "every": args.every, "jpeg_quality": args.jpeg_quality, "in_flight": args.in_flight,
+        "light": getattr(args, "light", False),
         "workers": args.workers, "server_config": args.server_config or None,
         "vo_attach": args.vo_attach, "vo_share": args.vo_share,
         "vo_range": args.vo_range,

@@ -252,15 +252,27 @@ def device_include(args, device):
     return Include(os.path.join(REPO_ROOT, "launch", "device.launch"), [
         ("device", device), ("every", "%d" % args.every),
         ("jpeg_quality", "%d" % args.jpeg_quality), ("sync_mode", args.sync_mode),
-        ("pace_in_flight", "%d" % args.in_flight), ("output", "screen")])
+        ("pace_in_flight", "%d" % (args.in_flight if args.pacing == "lockstep" else 0)),
+        ("output", "screen")])
+
+
+def light_devices_include(args, devices, datasets):
+    """launch/light_devices.launch: every device of the session as a light device in one
+    nodelet manager, each on its dataset (datasets: {device: absolute folder})."""
+    return Include(os.path.join(REPO_ROOT, "launch", "light_devices.launch"), [
+        ("devices", ",".join(devices)), ("datasets", ",".join(datasets[d] for d in devices)),
+        ("every", "%d" % args.every), ("jpeg_quality", "%d" % args.jpeg_quality),
+        ("sync_mode", args.sync_mode), ("rate", "%g" % args.rate), ("wait_subscribers", "60"),
+        ("output", "screen")])
 
 
 def player_include(args, device, dataset):
-    """launch/player.launch playing `dataset` (an absolute folder) as `device`, paced by the
-    device's frame_done."""
+    """launch/player.launch playing `dataset` (an absolute folder) as `device`: at the rate,
+    or, with --pacing lockstep, paced by the device's frame_done too."""
+    lockstep = "true" if args.pacing == "lockstep" else "false"
     return Include(os.path.join(REPO_ROOT, "launch", "player.launch"), [
         ("dataset", dataset), ("device", device), ("rate", "%g" % args.rate),
-        ("world_frame", "world"), ("pace_by_consumer", "true"), ("ack_timeout", "5.0"),
+        ("world_frame", "world"), ("pace_by_consumer", lockstep), ("ack_timeout", "5.0"),
         ("start_delay", "0.5"), ("wait_subscribers", "30.0"), ("output", "screen")])
 
 

@@ -49,9 +49,19 @@ def build_parser(description=None):
     p.add_argument("--rate", type=float, default=1.0,
                    help="playback speed relative to real time (upper bound; pacing may slow it)")
     p.add_argument("--frames", type=int, default=0, help="frames per device (0 = whole trajectory)")
+    p.add_argument("--pacing", choices=["camera", "lockstep"], default="camera",
+                   help="camera: each player publishes at the playback rate as a camera does, "
+                        "and a device that is busy when a frame comes skips it (counted in the "
+                        "summary); lockstep: each player waits for its device to be done with "
+                        "every frame and for its uploads' graphs (--in-flight), so no frame is "
+                        "skipped and playback slows down instead")
+    p.add_argument("--light", action="store_true",
+                   help="light devices, as the paper's device simulators: all in one nodelet "
+                        "manager, no players; each plays its dataset's uploads (JPEGs encoded "
+                        "once, launch/light_devices.launch) and tracks only those frames")
     p.add_argument("--in-flight", type=int, default=1,
-                   help="uploads a device may have waiting for their local graph before the "
-                        "player waits (0 = no pacing by round trip)")
+                   help="lockstep: uploads a device may have waiting for their local graph "
+                        "before the player waits (0 = no pacing by round trip)")
     p.add_argument("--workers", type=int, default=2, help="server tracking worker threads")
     p.add_argument("--link", default="loopback",
                    help="the link the server and the devices share: a profile of config/links "
@@ -102,4 +112,6 @@ def parse_args(argv, description=None, cwd=None):
         p.error("--rate must be > 0")
     if a.frames < 0:
         p.error("--frames must be >= 0")
+    if a.light and a.pacing == "lockstep":
+        p.error("--light plays at --rate by itself: it cannot be paced by --pacing lockstep")
     return a

@@ -50,6 +50,9 @@ def print_summary(s, out):
                                                                   " cm", 100.0, 2),
              r["device_vs_server_frames"], fmt(r["device_ate_se3_m"], " cm", 100.0, 2),
              fmt(r["server_ate_se3_m"], " cm", 100.0, 2)))
+        if r.get("frames_skipped"):
+            log("%s: %d of %d frames skipped (the device was busy when they came, as behind a "
+                "camera's driver)" % (d, r["frames_skipped"], r["frames"] + r["frames_skipped"]))
         if len(r.get("maps", [])) > 1:
             log("%s: server maps %s; measured in the final map %s from frame %s (%d server poses "
                 "in other maps left out)" % (d, r["maps"], r["final_map"],

@@ -98,14 +98,19 @@ def start_nodes(args, hosts, envs, port, devices, datasets, procs):
     master = launching.wait_for_master(envs["server"]["ROS_MASTER_URI"], MASTER_TIMEOUT_S,
                                        procs)
     server = launching.server_include(args)
-    device_includes = {d: launching.device_include(args, d) for d in devices}
+    if args.light:
+        device_includes = {"light_devices": launching.light_devices_include(args, devices,
+                                                                           datasets)}
+    else:
+        device_includes = {d: launching.device_include(args, d) for d in devices}
+        launching.write_launch(os.path.join(args.out, "session_players.launch"),
+                               [launching.player_include(args, d, datasets[d]) for d in devices])
     launching.write_launch(os.path.join(args.out, "session_nodes.launch"),
                            [server] + list(device_includes.values()))
-    launching.write_launch(os.path.join(args.out, "session_players.launch"),
-                           [launching.player_include(args, d, datasets[d]) for d in devices])
     procs.start("server", "the server", hosts.server.wrap(server.command()), envs["server"])
     for d, inc in device_includes.items():
-        procs.start(d, "device %s" % d, hosts.devices.wrap(inc.command()), envs["devices"])
+        what = "the light devices" if args.light else "device %s" % d
+        procs.start(d, what, hosts.devices.wrap(inc.command()), envs["devices"])
     # Devices connect once their camera_info arrives (it carries the intrinsics), so the
     # players start as soon as the server's connect service is up.
     deadline = time.time() + CONNECT_TIMEOUT_S
@@ -129,9 +134,9 @@ def play(args, hosts, envs, devices, datasets, procs, collector, frames, fps, ti
                                (", ".join(collector.unconnected()), CONNECT_TIMEOUT_S,
                                 procs.log_dir))
         time.sleep(0.05)
-    log("server up; playing %d device(s)" % len(devices))
+    log("server up; playing %d %sdevice(s)" % (len(devices), "light " if args.light else ""))
     start = time.time()
-    for d in devices:
+    for d in ([] if args.light else devices):
         procs.start("%s_player" % d, "the player of %s" % d,
                     hosts.devices.wrap(launching.player_include(args, d, datasets[d]).command()),
                     envs["devices"])
@@ -192,7 +197,7 @@ def _run_on(args, out, log_dir, scene_name, devices, hosts):
     try:
         start_nodes(args, hosts, envs, port, devices, datasets, procs)
         rospy.init_node("run_session", anonymous=True, disable_signals=True)
-        collector = Collector(devices)
+        collector = Collector(devices, metrics_publishers=1 if args.light else None)
         sent_before = hosts.counters()
         wall, in_time = play(args, hosts, envs, devices, datasets, procs, collector, frames,
                              fps, timeout)
@@ -212,14 +217,16 @@ def _run_on(args, out, log_dir, scene_name, devices, hosts):
     os.makedirs(traj_dir, exist_ok=True)
     final = maps.final_map(collector, devices)
     per_device = {d: evaluating.device_summary(d, datasets[d], collector, traj_dir, env,
-                                               final=final)
+                                               final=final, uploads_only=args.light)
                   for d in devices}
     overall = evaluating.overall_summary(devices, collector)
     structure.save_raw(os.path.join(out, "vo_raw.json.gz"), collector)
     vo, planes = structure.evaluate_structure(args, devices, datasets, collector)
     spans = {d: (frames[d], collector.first_frame_wall.get(d), collector.last_frame_wall.get(d))
              for d in devices}
-    pacing = evaluating.pacing_summary(args.rate, evaluating.playback_rate(spans, fps), wall)
+    pacing = evaluating.pacing_summary(
+        args.rate, evaluating.playback_rate(spans, fps), wall, args.pacing,
+        sum(r["frames_skipped"] or 0 for r in per_device.values()))
     sent = None if sent_before is None else {k: sent_after[k] - sent_before[k]
                                              for k in sent_before}
     link = evaluating.link_summary(hosts.profile, sent, wall)

@@ -1,0 +1,115 @@
+// A light device (~light/dataset), as the paper's device simulators: no camera
+// topics and no image encoding. It plays the uploads of a dataset, encoded once
+// into an ecar::UploadCache, at the dataset's upload rate (times ~light/rate),
+// uploads each exactly as a full device does, and tracks only those frames, so
+// its keyframe queue is built from the local graphs as on a full device. Many
+// fit in one nodelet manager.
+#include <std_msgs/Bool.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include <boost/make_shared.hpp>
+
+#include "device_internal.h"
+#include "ecar_bridge/camera.h"
+#include "ecar_core/common/error.h"
+#include "ecar_device/device.h"
+
+namespace ecar_device {
+
+using device_internal::kOdometryKept;
+using device_internal::kWarnPeriod;
+
+void Device::startLight() {
+  const DeviceConfig::Light& light = config_.light;
+  const ros::WallTime started = ros::WallTime::now();
+  const ecar::Dataset dataset = ecar::Dataset::open(light.dataset);
+  ecar::UploadCacheConfig cache;
+  cache.every = config_.every;
+  cache.jpeg_quality = config_.jpeg_quality;
+  cache.max_frames = static_cast<size_t>(light.max_frames);
+  cache.dir = light.cache_dir;
+  light_cache_ = ecar::UploadCache::build(dataset, cache);
+  const auto& uploads = light_cache_->uploads();
+  if (uploads.empty()) throw ecar::Error("~light/dataset: " + light.dataset + " has no frames");
+  if (!dataset.touches().empty()) {
+    ROS_WARN("%s: a light device does not replay the %zu scripted touches of %s",
+             config_.device_id.c_str(), dataset.touches().size(), light.dataset.c_str());
+  }
+  // The camera, as a camera_info would bring it (this also connects).
+  onCameraInfo(boost::make_shared<sensor_msgs::CameraInfo>(
+      ecar_bridge::toMsg(dataset.camera(), std_msgs::Header())));
+  const double span = uploads.back().timestamp - uploads.front().timestamp;
+  const double period =
+      (uploads.size() > 1 ? span / static_cast<double>(uploads.size() - 1) : 0.1) / light.rate;
+  // As a player in this namespace would (DeviceTopics' names are relative).
+  light_finished_pub_ = nh_.advertise<std_msgs::Bool>("player/finished", 1, /*latch=*/true);
+  light_timer_ = nh_.createSteadyTimer(ros::WallDuration(period),
+                                       [this](const ros::SteadyTimerEvent&) { onLightTimer(); });
+  ROS_INFO(
+      "%s: light device on %s: %zu uploads every %.1f ms (%zu encoded now, %.1f MB in %s, "
+      "%.2f s)",
+      config_.device_id.c_str(), light.dataset.c_str(), uploads.size(), 1000.0 * period,
+      light_cache_->encoded(), light_cache_->bytes() / 1e6, light_cache_->dir().c_str(),
+      (ros::WallTime::now() - started).toSec());
+}
+
+void Device::onLightTimer() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto& uploads = light_cache_->uploads();
+  if (light_next_ >= uploads.size()) return;
+  // Playback starts once the server has joined our topics and someone listens
+  // to what we measure (or ~light/wait_subscribers later), as a player waits.
+  if (!light_started_) {
+    if (!tracker_ || !connected_ || !linkedToServer()) return;
+    const ros::WallTime now = ros::WallTime::now();
+    if (light_joined_.isZero()) light_joined_ = now;
+    const bool listened =
+        device_frame_pub_.getNumSubscribers() > 0 && global_metrics_pub_.getNumSubscribers() > 0;
+    if (!listened && (now - light_joined_).toSec() < config_.light.wait_subscribers) return;
+    light_started_ = true;
+    ROS_INFO("%s: joined the server: playing%s", config_.device_id.c_str(),
+             listened ? "" : " (nobody subscribes device_frame and the metrics yet)");
+  }
+  const ecar::CachedUpload& u = uploads[light_next_++];
+  std_msgs::Header header;
+  header.seq = static_cast<uint32_t>(u.index);
+  header.stamp = ros::Time::now();
+  header.frame_id = camera_frame_;
+  cv::imdecode(u.jpeg, cv::IMREAD_GRAYSCALE, &light_gray_);
+  if (light_gray_.cols != static_cast<int>(camera_info_.width) ||
+      light_gray_.rows != static_cast<int>(camera_info_.height)) {
+    ROS_WARN_THROTTLE(kWarnPeriod,
+                      "%s: cached upload of frame %zu in %s is not a %ux%u JPEG: "
+                      "skipped",
+                      config_.device_id.c_str(), u.index, light_cache_->dir().c_str(),
+                      camera_info_.width, camera_info_.height);
+  } else {
+    if (u.gravity_c) gravity_c_ = *u.gravity_c;
+    if (u.T_o_c) {
+      odometry_.emplace_back(header.stamp, *u.T_o_c);
+      if (odometry_.size() > kOdometryKept) odometry_.pop_front();
+    }
+    prunePending(header.stamp);
+    const bool uploaded = connected_ && linkedToServer();
+    if (uploaded) {
+      upload(light_gray_, header, &u.jpeg);
+    } else {
+      upload_due_since_progress_ = true;  // a server gone for good: connect again
+    }
+    const ecar::DeviceTrackResult& r =
+        tracker_->track(light_gray_, header.stamp.toSec(), header.seq);
+    if (uploaded && !pending_.empty() && pending_.back().frame_index == header.seq) {
+      pending_.back().tracking_time = static_cast<float>(r.total_ms / 1000.0);
+    }
+    publishResult(header, light_gray_, r, uploaded);
+  }
+  if (light_next_ == uploads.size()) {
+    std_msgs::Bool finished;
+    finished.data = true;
+    light_finished_pub_.publish(finished);
+    ROS_INFO("%s: played the %zu uploads of %s", config_.device_id.c_str(), uploads.size(),
+             config_.light.dataset.c_str());
+  }
+}
+
+}  // namespace ecar_device
