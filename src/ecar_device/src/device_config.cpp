@@ -126,6 +126,7 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   l.read("max_frames", &c.light.max_frames);
   l.read("cache_dir", &c.light.cache_dir);
   l.read("wait_subscribers", &c.light.wait_subscribers);
+  l.read("start_topic", &c.light.start_topic);
   if (unknown) *unknown = r.unknown();
   c.validate();
   return c;

@@ -5,6 +5,7 @@
 // its keyframe queue is built from the local graphs as on a full device. Many
 // fit in one nodelet manager.
 #include <std_msgs/Bool.h>
+#include <std_msgs/Time.h>
 #include <opencv2/imgcodecs.hpp>
 
 #include <boost/make_shared.hpp>
@@ -43,6 +44,13 @@ void Device::startLight() {
       (uploads.size() > 1 ? span / static_cast<double>(uploads.size() - 1) : 0.1) / light.rate;
   // As a player in this namespace would (DeviceTopics' names are relative).
   light_finished_pub_ = nh_.advertise<std_msgs::Bool>("player/finished", 1, /*latch=*/true);
+  if (!light.start_topic.empty()) {
+    light_start_sub_ = nh_.subscribe<std_msgs::Time>(light.start_topic, 1,
+                                                     [this](const std_msgs::TimeConstPtr& msg) {
+                                                       std::lock_guard<std::mutex> lock(mutex_);
+                                                       light_start_ = msg->data;
+                                                     });
+  }
   light_timer_ = nh_.createSteadyTimer(ros::WallDuration(period),
                                        [this](const ros::SteadyTimerEvent&) { onLightTimer(); });
   ROS_INFO(
@@ -66,6 +74,9 @@ void Device::onLightTimer() {
     const bool listened =
         device_frame_pub_.getNumSubscribers() > 0 && global_metrics_pub_.getNumSubscribers() > 0;
     if (!listened && (now - light_joined_).toSec() < config_.light.wait_subscribers) return;
+    if (!config_.light.start_topic.empty() && (!light_start_ || ros::Time::now() < *light_start_)) {
+      return;
+    }
     light_started_ = true;
     ROS_INFO("%s: joined the server: playing%s", config_.device_id.c_str(),
              listened ? "" : " (nobody subscribes device_frame and the metrics yet)");

@@ -58,6 +58,12 @@ class ProfileTest(unittest.TestCase):
         wifi = links.LinkProfile.find("wifi", LINKS_DIR)
         self.assertEqual((wifi.down_bytes_per_s * 8, wifi.up_bytes_per_s * 8), (600e6, 150e6))
         self.assertFalse(links.LinkProfile.find("loopback", LINKS_DIR).shaped)
+        # Scaled time (run_session --rate 0.5): half the rates, a queue holding the same bytes.
+        half = campus.scaled(0.5)
+        self.assertEqual((half.down_bytes_per_s, half.up_bytes_per_s), (1990000, 1750000))
+        self.assertEqual((half.burst_bytes, half.queue_ms), (campus.burst_bytes,
+                                                              2 * campus.queue_ms))
+        self.assertIs(campus.scaled(1.0), campus)
 
     def test_errors_name_the_file_and_the_key(self):
         with tempfile.TemporaryDirectory() as tmp:

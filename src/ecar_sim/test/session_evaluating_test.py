@@ -181,6 +181,16 @@ class OverallTest(unittest.TestCase):
         self.assertEqual(o["bytes_per_point_median"], 20.0)
         self.assertEqual(o["device_tracking_ms_median"], 9.0)
 
+    def test_scaled_back(self):
+        # At time scale 0.25 the link's parts (upload 1 ms, download 0.5 ms) are 4x what
+        # they are at real time; the server's 5 ms are not.
+        o = ev.overall_summary(["device_0"], records(), time_scale=0.25)
+        self.assertEqual(o["latency_ms_median"], 20.0)
+        self.assertEqual(o["scaled_back"], {
+            "time_scale": 0.25, "latency_ms_median": 5.38, "latency_ms_p95": 7.17,
+            "upload_ms_median": 0.25, "download_ms_median": 0.12})
+        self.assertNotIn("scaled_back", ev.overall_summary(["device_0"], records()))
+
     def test_empty_session(self):
         empty = types.SimpleNamespace(device_frames={"a": {}}, metrics=[])
         o = ev.overall_summary(["a"], empty)
@@ -288,7 +298,13 @@ class ReportTest(unittest.TestCase):
                          "MB (40.0% of 2.00 MB/s) over the session")
         # Loopback: the profile only, no line.
         loop = ev.link_summary(links.LinkProfile("loopback", shaped=False), None, 10.0)
-        self.assertEqual(loop, {"profile": "loopback", "description": "", "shaped": False})
+        self.assertEqual(loop, {"profile": "loopback", "description": "", "shaped": False,
+                                "time_scale": 1.0})
+        # Scaled time: the scaled rates, the utilisation as at real time.
+        half = ev.link_summary(profile.scaled(0.5), {"down": 1500000, "up": 4000000}, 20.0,
+                               time_scale=0.5)
+        self.assertEqual((half["time_scale"], half["up_bytes_per_s"], half["up_utilisation"]),
+                         (0.5, 1e6, 0.2))
 
     def test_progress_line(self):
         line = report.progress_line(20.4, {"device_0": 64, "device_2": 60},

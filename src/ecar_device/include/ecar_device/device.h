@@ -107,6 +107,10 @@ struct DeviceConfig {
     /// ~light/wait_subscribers: s to wait, once joined to the server, for a
     /// subscriber on device_frame and on the metrics topic before playing (>= 0)
     double wait_subscribers = 5.0;
+    /// ~light/start_topic: "" = play once joined (and listened to); else also
+    /// wait for a std_msgs/Time on this topic and play from that wall time on,
+    /// so that many light devices start together
+    std::string start_topic;
   } light;
 
   /// Throws ecar::Error naming the parameter (e.g. "~every") of the first bad value.
@@ -272,7 +276,9 @@ class Device {
   std::optional<ecar::UploadCache> light_cache_;
   size_t light_next_ = 0;  ///< index into light_cache_->uploads()
   bool light_started_ = false;
-  ros::WallTime light_joined_;  ///< when the server joined our topics (0: not yet)
+  ros::WallTime light_joined_;            ///< when the server joined our topics (0: not yet)
+  std::optional<ros::Time> light_start_;  ///< from ~light/start_topic
+  ros::Subscriber light_start_sub_;
   cv::Mat light_gray_;
   ros::SteadyTimer light_timer_;
   ros::Publisher light_finished_pub_;

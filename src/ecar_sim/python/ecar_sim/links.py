@@ -50,6 +50,17 @@ class LinkProfile:
             raise LinkError("link profile %s: burst_bytes %d is below one packet (1600)" %
                             (name, self.burst_bytes))
 
+    def scaled(self, factor):
+        """This profile in time scaled by `factor` (a session played at --rate factor): both
+        rates times factor, the queue's time over it (so that it holds the same bytes), the
+        bucket unchanged (bytes are bytes). Transfers then take 1 / factor as long, as every
+        other interval of the session does."""
+        if not self.shaped or factor == 1.0:
+            return self
+        return LinkProfile(self.name, self.description, True,
+                           self.down_bytes_per_s * factor, self.up_bytes_per_s * factor,
+                           self.burst_bytes, self.queue_ms / factor)
+
     @staticmethod
     def load(path):
         """The profile in a YAML file; raises LinkError naming the file and the key."""

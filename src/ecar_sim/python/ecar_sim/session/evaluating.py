@@ -133,12 +133,15 @@ def device_summary(device, dataset, records, traj_dir, env, ate_rmse=ate, final=
     }
 
 
-def overall_summary(devices, records):
+def overall_summary(devices, records, time_scale=1.0):
     """summary.json's overall entry: local graph bytes, bytes per tracked point, latency,
-    server and device times over every round trip of the session."""
+    server and device times over every round trip of the session. A session in scaled time
+    (time_scale = its rate, != 1, on a shaped link whose rates were scaled with it) also gets
+    `scaled_back`: the link's parts of each round trip (upload, download) times time_scale, as
+    at real time on the unscaled link; the server's part as measured (its work does not scale)."""
     rows = records.metrics
     with_points = [r for r in rows if r["points"] > 0]
-    return {
+    out = {
         "round_trips": len(rows),
         "local_graph_bytes_median": percentile([r["bytes_down"] for r in rows], 50),
         "local_graph_bytes_p95": percentile([r["bytes_down"] for r in rows], 95),
@@ -161,6 +164,17 @@ def overall_summary(devices, records):
             [e.tracking_time * 1e3 for d in devices for e in records.device_frames[d].values()],
             50), 2),
     }
+    if time_scale != 1.0:
+        s = time_scale
+        latency = [r["upload_ms"] * s + r["server_ms"] + r["download_ms"] * s for r in rows]
+        out["scaled_back"] = {
+            "time_scale": s,
+            "latency_ms_median": rnd(percentile(latency, 50), 2),
+            "latency_ms_p95": rnd(percentile(latency, 95), 2),
+            "upload_ms_median": rnd(percentile([r["upload_ms"] * s for r in rows], 50), 2),
+            "download_ms_median": rnd(percentile([r["download_ms"] * s for r in rows], 50), 2),
+        }
+    return out
 
 
 def playback_rate(spans, fps):
@@ -198,12 +212,14 @@ def pacing_summary(requested, achieved, wall_seconds, pacing="lockstep", skipped
     }
 
 
-def link_summary(profile, sent, wall):
+def link_summary(profile, sent, wall, time_scale=1.0):
     """The link's part of the summary: the profile, and per direction the bytes that crossed
     it (tc's counters of each end, everything the hosts sent) and their share of its rate over
-    the session's wall time; the bytes are None on loopback (not shaped, not counted)."""
+    the session's wall time; the bytes are None on loopback (not shaped, not counted). In scaled
+    time the rates are the scaled ones (profile is scaled) and the utilisation is the same as
+    at real time."""
     out = {"profile": profile.name, "description": profile.description,
-           "shaped": profile.shaped}
+           "shaped": profile.shaped, "time_scale": time_scale if profile.shaped else 1.0}
     if not profile.shaped or sent is None:
         return out
     for direction, rate in (("down", profile.down_bytes_per_s), ("up", profile.up_bytes_per_s)):

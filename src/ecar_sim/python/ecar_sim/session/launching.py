@@ -256,6 +256,10 @@ def device_include(args, device):
         ("output", "screen")])
 
 
+# std_msgs/Time, latched: when the light devices of a session start playing, all together.
+START_TOPIC = "/ecar/session_start"
+
+
 def light_devices_include(args, devices, datasets):
     """launch/light_devices.launch: every device of the session as a light device in one
     nodelet manager, each on its dataset (datasets: {device: absolute folder})."""
@@ -263,7 +267,7 @@ def light_devices_include(args, devices, datasets):
         ("devices", ",".join(devices)), ("datasets", ",".join(datasets[d] for d in devices)),
         ("every", "%d" % args.every), ("jpeg_quality", "%d" % args.jpeg_quality),
         ("sync_mode", args.sync_mode), ("rate", "%g" % args.rate), ("wait_subscribers", "60"),
-        ("output", "screen")])
+        ("start_topic", START_TOPIC), ("output", "screen")])
 
 
 def player_include(args, device, dataset):

@@ -64,6 +64,13 @@ def print_summary(s, out):
                                    fmt(o["bytes_per_point_median"], "", 1, 1),
                                    fmt(o["latency_ms_median"]), fmt(o["latency_ms_p95"]),
                                    fmt(o["server_ms_median"])))
+    sb = o.get("scaled_back")
+    if sb:
+        log("scaled back from time scale %g to real time (link parts x %g, server as measured): "
+            "latency %s ms median (p95 %s), upload %s ms, download %s ms" % (
+                sb["time_scale"], sb["time_scale"], fmt(sb["latency_ms_median"]),
+                fmt(sb["latency_ms_p95"]), fmt(sb["upload_ms_median"]),
+                fmt(sb["download_ms_median"])))
     if o.get("upload_ms_median") is not None:
         log("latency's parts, medians: upload %s ms, on the server %s ms (align %s, queueing, "
             "decoding and composing %s), download %s ms" % (

@@ -13,6 +13,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 import rospy
+from std_msgs.msg import Time
 
 from ecar_sim import links
 from ecar_sim.session import evaluating, launching, maps, options, structure
@@ -25,6 +26,7 @@ SETTLE_S = 3.0  # quiet time after every player finished before the session ends
 MASTER_TIMEOUT_S = 30.0
 CONNECT_TIMEOUT_S = 60.0  # for the server's /ecar/connect, and for the devices' topics
 POLL_S = 0.5
+LIGHT_START_DELAY_S = 0.5  # from publishing the start time to the light devices' first frame
 
 
 def main(argv, description=None):
@@ -136,6 +138,10 @@ def play(args, hosts, envs, devices, datasets, procs, collector, frames, fps, ti
         time.sleep(0.05)
     log("server up; playing %d %sdevice(s)" % (len(devices), "light " if args.light else ""))
     start = time.time()
+    if args.light:
+        # All together, once every device is listened to (they wait for this time).
+        starter = rospy.Publisher(launching.START_TOPIC, Time, queue_size=1, latch=True)
+        starter.publish(rospy.Time.from_sec(start + LIGHT_START_DELAY_S))
     for d in ([] if args.light else devices):
         procs.start("%s_player" % d, "the player of %s" % d,
                     hosts.devices.wrap(launching.player_include(args, d, datasets[d]).command()),
@@ -162,6 +168,13 @@ def run(args):
     try:
         profile = links.LinkProfile.find(args.link, os.path.join(options.REPO_ROOT, "config",
                                                                  "links"))
+        if profile.shaped and args.rate != 1.0:
+            log("scaled time: playback at rate %g, so the link's rates too: up %.3f MB/s, down "
+                "%.3f MB/s (%s's %.3f and %.3f)" % (
+                    args.rate, profile.up_bytes_per_s * args.rate / 1e6,
+                    profile.down_bytes_per_s * args.rate / 1e6, profile.name,
+                    profile.up_bytes_per_s / 1e6, profile.down_bytes_per_s / 1e6))
+            profile = profile.scaled(args.rate)
         with links.Hosts(profile, observer=True) as hosts:
             for name in hosts.removed_leftovers:
                 log("removed network namespace %s of a run that ended without cleaning up" %
@@ -219,7 +232,8 @@ def _run_on(args, out, log_dir, scene_name, devices, hosts):
     per_device = {d: evaluating.device_summary(d, datasets[d], collector, traj_dir, env,
                                                final=final, uploads_only=args.light)
                   for d in devices}
-    overall = evaluating.overall_summary(devices, collector)
+    overall = evaluating.overall_summary(
+        devices, collector, time_scale=args.rate if hosts.profile.shaped else 1.0)
     structure.save_raw(os.path.join(out, "vo_raw.json.gz"), collector)
     vo, planes = structure.evaluate_structure(args, devices, datasets, collector)
     spans = {d: (frames[d], collector.first_frame_wall.get(d), collector.last_frame_wall.get(d))
@@ -229,7 +243,7 @@ def _run_on(args, out, log_dir, scene_name, devices, hosts):
         sum(r["frames_skipped"] or 0 for r in per_device.values()))
     sent = None if sent_before is None else {k: sent_after[k] - sent_before[k]
                                              for k in sent_before}
-    link = evaluating.link_summary(hosts.profile, sent, wall)
+    link = evaluating.link_summary(hosts.profile, sent, wall, time_scale=args.rate)
     summary = evaluating.build_summary(args, devices, pacing, per_device, overall, vo, planes,
                                        link)
     evaluating.write_summary(out, summary)
