@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# The paper's experiments, one command: runs them (long: not part of the test suite) and writes
+# CSV, PNG plots and REPORT.md (the paper's figures beside ours) into out/reproduce/.
+# Implemented so far: E2 (sync latency against 1..20 devices on the campus link, eCAR and
+# edgeSLAM) and E3 (the latency's parts against devices). Needs root (network namespaces).
+#
+# Usage: scripts/reproduce.sh [--quick] [--out DIR]
+set -eo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+bash scripts/setup.sh
+source scripts/env.sh
+exec /usr/bin/python3 -m ecar_sim.reproduce "$@"

@@ -1,0 +1,116 @@
+"""E2 and E3: sync latency, and its parts, against the number of devices sharing the campus
+link, in eCAR and edgeSLAM mode (the paper's figures of 1 to 20 device simulators on campus
+Wi-Fi).
+
+Every point is one run_session of light devices (--light: the paper's simulators) on
+--link campus, in scaled time (--rate below 1 scales the link's rates with the playback, and
+the summary scales the link's parts back). Writes e2_e3.csv, e2_latency.png, e3_parts.png and
+returns the report's section.
+"""
+
+import csv
+import json
+import os
+import subprocess
+
+from ecar_sim.reproduce import plots
+
+# The paper's sync latency (ms) with 1 and with 20 devices.
+PAPER_LATENCY = {"ecar": {1: 53.0, 20: 69.0}, "edgeslam": {1: 63.0, 20: 111.0}}
+FIELDS = ["mode", "devices", "latency_ms_median", "latency_ms_p95", "latency_scaled_ms_median",
+          "upload_ms_median", "upload_scaled_ms_median", "server_ms_median", "align_ms_median",
+          "server_other_ms_median", "download_ms_median", "download_scaled_ms_median",
+          "up_utilisation", "down_utilisation", "local_graph_bytes_median",
+          "upload_bytes_median", "round_trips", "time_scale"]
+
+
+def run_point(root, out, mode, devices, frames, rate, quality):
+    """One session; returns its CSV row (from summary.json)."""
+    folder = os.path.join(out, "runs", "%s_%02d" % (mode, devices))
+    cmd = ["rosrun", "ecar_sim", "run_session", "--scene",
+           os.path.join(root, "config", "scenes", "corridor.yaml"), "--devices", str(devices),
+           "--light", "--link", "campus", "--rate", "%g" % rate, "--frames", str(frames),
+           "--sync-mode", mode, "--jpeg-quality", str(quality), "--out", folder]
+    print("[reproduce] " + " ".join(cmd), flush=True)
+    with open(folder + ".log", "w") as log:
+        subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, check=True)
+    with open(os.path.join(folder, "summary.json")) as f:
+        s = json.load(f)
+    o, link = s["overall"], s["link"] or {}
+    back = o.get("scaled_back") or {}
+    return {
+        "mode": mode, "devices": devices,
+        "latency_ms_median": o["latency_ms_median"], "latency_ms_p95": o["latency_ms_p95"],
+        "latency_scaled_ms_median": back.get("latency_ms_median", o["latency_ms_median"]),
+        "upload_ms_median": o["upload_ms_median"],
+        "upload_scaled_ms_median": back.get("upload_ms_median", o["upload_ms_median"]),
+        "server_ms_median": o["server_ms_median"], "align_ms_median": o["align_ms_median"],
+        "server_other_ms_median": o["server_other_ms_median"],
+        "download_ms_median": o["download_ms_median"],
+        "download_scaled_ms_median": back.get("download_ms_median", o["download_ms_median"]),
+        "up_utilisation": link.get("up_utilisation"),
+        "down_utilisation": link.get("down_utilisation"),
+        "local_graph_bytes_median": o["local_graph_bytes_median"],
+        "upload_bytes_median": o["upload_bytes_median"], "round_trips": o["round_trips"],
+        "time_scale": rate,
+    }
+
+
+def run(root, out, quick):
+    """Runs the sweep into out/; returns the REPORT.md section (markdown)."""
+    counts = [1, 5, 10, 20] if quick else [1, 2, 5, 10, 15, 20]
+    frames, rate, quality = (200, 0.25, 70) if quick else (300, 0.25, 70)
+    os.makedirs(os.path.join(out, "runs"), exist_ok=True)
+    rows = [run_point(root, out, mode, n, frames, rate, quality)
+            for mode in ("ecar", "edgeslam") for n in counts]
+    with open(os.path.join(out, "e2_e3.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=FIELDS)
+        w.writeheader()
+        w.writerows(rows)
+    plots.latency_vs_devices(rows, PAPER_LATENCY, os.path.join(out, "e2_latency.png"))
+    plots.parts_vs_devices(rows, os.path.join(out, "e3_parts.png"))
+    return section(rows, frames, rate, quality)
+
+
+def section(rows, frames, rate, quality):
+    """REPORT.md's E2 and E3 (markdown) from the CSV rows."""
+    lines = [
+        "## E2: sync latency against devices on the campus link",
+        "",
+        "Light devices (`run_session --light`, the paper's simulators) on `--link campus` "
+        "(3.5 MB/s up, 3.98 MB/s down), %d frames each (every 4th uploaded at JPEG %d), in "
+        "scaled time at rate %g: the link's rates are scaled with the playback, and the latency "
+        "is given as measured and scaled back (link parts x %g, the server's as measured)."
+        % (frames, quality, rate, rate),
+        "",
+        "![E2](e2_latency.png)",
+        "",
+        "| mode | devices | latency median, scaled back (ms) | measured (ms) | p95 measured | "
+        "uplink used | upload size median (B) | paper (ms) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        paper = PAPER_LATENCY[r["mode"]].get(r["devices"])
+        lines.append("| %s | %d | %.1f | %.1f | %.1f | %s | %s | %s |" % (
+            r["mode"], r["devices"], r["latency_scaled_ms_median"], r["latency_ms_median"],
+            r["latency_ms_p95"], pct(r["up_utilisation"]), r["upload_bytes_median"],
+            "%.0f" % paper if paper else "-"))
+    lines += [
+        "",
+        "## E3: the latency's parts against devices",
+        "",
+        "![E3](e3_parts.png)",
+        "",
+        "| mode | devices | upload, scaled back (ms) | server: align (ms) | server: rest (ms) | "
+        "download, scaled back (ms) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append("| %s | %d | %.1f | %.1f | %.1f | %.1f |" % (
+            r["mode"], r["devices"], r["upload_scaled_ms_median"], r["align_ms_median"],
+            r["server_other_ms_median"], r["download_scaled_ms_median"]))
+    return "\n".join(lines) + "\n"
+
+
+def pct(x):
+    return "-" if x is None else "%.0f%%" % (100.0 * x)
