@@ -31,6 +31,31 @@ class ReproduceTest(unittest.TestCase):
         self.assertIn("scaled time at rate 0.25", text)
         self.assertIn("![E2](e2_latency.png)", text)
 
+    def test_traffic_of_one_device_in_each_mode(self):
+        rows = [row("ecar", 1, 23.2), row("edgeslam", 1, 42.5), row("ecar", 5, 40.0)]
+        rows[0]["local_graph_bytes_median"] = 5835
+        rows[1]["local_graph_bytes_median"] = 97780
+        text = scaling.traffic_section(rows)
+        self.assertIn("| eCAR | 5835 | 49000 |", text)
+        self.assertIn("| edgeSLAM | 97780 | 49000 |", text)
+        self.assertIn("edgeSLAM's local graph is 16.8x eCAR's", text)
+        self.assertEqual(scaling.traffic_section(rows[:1]), "")
+
+    def test_report_again_from_the_csv(self):
+        rows = [row(m, n, 10.0 * n) for m in ("ecar", "edgeslam") for n in (1, 20)]
+        for r in rows:
+            r.update(frames=200, jpeg_quality=70, time_scale=0.25)
+        with tempfile.TemporaryDirectory() as tmp:
+            import csv
+            with open(os.path.join(tmp, "e2_e3.csv"), "w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=scaling.FIELDS)
+                w.writeheader()
+                w.writerows(rows)
+            text = scaling.report(tmp)
+            self.assertTrue(os.path.exists(os.path.join(tmp, "e2_latency.png")))
+        self.assertIn("| edgeslam | 20 | 200.0 | 800.0 | 1600.0 | 25% | 49000 | 111 |", text)
+        self.assertIn("200 frames each (every 4th uploaded at JPEG 70)", text)
+
     def test_plots_are_written(self):
         rows = [row(m, n, 10.0 * n) for m in ("ecar", "edgeslam") for n in (1, 5, 20)]
         with tempfile.TemporaryDirectory() as tmp:

@@ -1,6 +1,6 @@
-"""E2 and E3: sync latency, and its parts, against the number of devices sharing the campus
-link, in eCAR and edgeSLAM mode (the paper's figures of 1 to 20 device simulators on campus
-Wi-Fi).
+"""E1, E2 and E3 from one sweep: local graph traffic (eCAR against edgeSLAM, one device), and
+sync latency and its parts against the number of devices sharing the campus link, in eCAR and
+edgeSLAM mode (the paper's figures of 1 to 20 device simulators on campus Wi-Fi).
 
 Every point is one run_session of light devices (--light: the paper's simulators) on
 --link campus, in scaled time (--rate below 1 scales the link's rates with the playback, and
@@ -21,7 +21,7 @@ FIELDS = ["mode", "devices", "latency_ms_median", "latency_ms_p95", "latency_sca
           "upload_ms_median", "upload_scaled_ms_median", "server_ms_median", "align_ms_median",
           "server_other_ms_median", "download_ms_median", "download_scaled_ms_median",
           "up_utilisation", "down_utilisation", "local_graph_bytes_median",
-          "upload_bytes_median", "round_trips", "time_scale"]
+          "upload_bytes_median", "round_trips", "time_scale", "frames", "jpeg_quality"]
 
 
 def run_point(root, out, mode, devices, frames, rate, quality):
@@ -52,7 +52,7 @@ def run_point(root, out, mode, devices, frames, rate, quality):
         "down_utilisation": link.get("down_utilisation"),
         "local_graph_bytes_median": o["local_graph_bytes_median"],
         "upload_bytes_median": o["upload_bytes_median"], "round_trips": o["round_trips"],
-        "time_scale": rate,
+        "time_scale": rate, "frames": frames, "jpeg_quality": quality,
     }
 
 
@@ -67,14 +67,62 @@ def run(root, out, quick):
         w = csv.DictWriter(f, fieldnames=FIELDS)
         w.writeheader()
         w.writerows(rows)
+    return report(out, rows)
+
+
+def report(out, rows=None):
+    """Plots and the report's section from rows (default: out/e2_e3.csv of an earlier run)."""
+    if rows is None:
+        with open(os.path.join(out, "e2_e3.csv")) as f:
+            rows = [{k: parse(v) for k, v in r.items()} for r in csv.DictReader(f)]
     plots.latency_vs_devices(rows, PAPER_LATENCY, os.path.join(out, "e2_latency.png"))
     plots.parts_vs_devices(rows, os.path.join(out, "e3_parts.png"))
-    return section(rows, frames, rate, quality)
+    r = rows[0]
+    return section(rows, r["frames"], r["time_scale"], r["jpeg_quality"])
+
+
+def parse(text):
+    """A CSV cell: the mode stays text, numbers become int or float, empty None."""
+    if text == "":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        try:
+            return float(text)
+        except ValueError:
+            return text
+
+
+# The paper's summary of its traffic figure: up to 370 % less traffic than edgeSLAM.
+PAPER_TRAFFIC = "up to 370% less traffic than edgeSLAM"
+
+
+def traffic_section(rows):
+    """REPORT.md's E1 (markdown): local graph bytes of one device in each mode."""
+    one = {r["mode"]: r for r in rows if r["devices"] == 1}
+    if "ecar" not in one or "edgeslam" not in one:
+        return ""
+    e, s = one["ecar"]["local_graph_bytes_median"], one["edgeslam"]["local_graph_bytes_median"]
+    return "\n".join([
+        "## E1: local graph traffic, eCAR against edgeSLAM",
+        "",
+        "One light device, the same uploads (E2's one-device runs). The paper: %s." %
+        PAPER_TRAFFIC,
+        "",
+        "| mode | local graph median (B) | upload median (B) |",
+        "|---|---|---|",
+        "| eCAR | %.0f | %.0f |" % (e, one["ecar"]["upload_bytes_median"]),
+        "| edgeSLAM | %.0f | %.0f |" % (s, one["edgeslam"]["upload_bytes_median"]),
+        "",
+        "edgeSLAM's local graph is %.1fx eCAR's (%.0f%% more)." % (s / e, 100.0 * (s / e - 1)),
+        "",
+    ]) + "\n"
 
 
 def section(rows, frames, rate, quality):
-    """REPORT.md's E2 and E3 (markdown) from the CSV rows."""
-    lines = [
+    """REPORT.md's E1, E2 and E3 (markdown) from the CSV rows."""
+    lines = [traffic_section(rows) +
         "## E2: sync latency against devices on the campus link",
         "",
         "Light devices (`run_session --light`, the paper's simulators) on `--link campus` "
@@ -91,7 +139,7 @@ def section(rows, frames, rate, quality):
     ]
     for r in rows:
         paper = PAPER_LATENCY[r["mode"]].get(r["devices"])
-        lines.append("| %s | %d | %.1f | %.1f | %.1f | %s | %s | %s |" % (
+        lines.append("| %s | %d | %.1f | %.1f | %.1f | %s | %.0f | %s |" % (
             r["mode"], r["devices"], r["latency_scaled_ms_median"], r["latency_ms_median"],
             r["latency_ms_p95"], pct(r["up_utilisation"]), r["upload_bytes_median"],
             "%.0f" % paper if paper else "-"))
