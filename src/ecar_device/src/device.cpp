@@ -34,6 +34,10 @@ namespace {
 using device_internal::kOdometryKept;
 using device_internal::kWarnPeriod;
 
+/// Times ~reconnect_timeout without a graph after which a device connects
+/// again although the server still joins its topics.
+constexpr double kLinkedSilenceFactor = 5.0;
+
 const char* stateName(ecar::TrackingState s) { return ecar::toString(s); }
 
 /// Runs a function once on the callback queue it is added to.
@@ -252,7 +256,7 @@ void Device::onImage(const sensor_msgs::ImageConstPtr& msg) {
   prunePending(now);
 
   bool uploaded = false;
-  if (connected_ && upload_schedule_.due(seq, config_.every)) {
+  if (connected_ && upload_schedule_.due(seq, config_.every) && !uploadsBlocked()) {
     // The topics are joined on our connection: until they are, an upload or
     // its graph would go nowhere and hold the pacing for nothing.
     if (linkedToServer()) {
@@ -504,6 +508,14 @@ void Device::prunePending(const ros::Time& now) {
 
 // ---------------------------------------------------------------- pacing
 
+bool Device::uploadsBlocked() const {
+  if (config_.max_in_flight <= 0) return false;
+  const ros::Time now = ros::Time::now();
+  return std::count_if(pending_.begin(), pending_.end(), [&](const Pending& p) {
+           return (now - p.sent).toSec() < config_.reconnect_timeout;
+         }) >= config_.max_in_flight;
+}
+
 bool Device::linkedToServer() const {
   return upload_pub_.getNumSubscribers() > 0 && graph_sub_.getNumPublishers() > 0;
 }
@@ -576,8 +588,14 @@ void Device::connect() {
     if (connected_) {
       const double silent = (ros::WallTime::now() - last_progress_).toSec();
       if (!upload_due_since_progress_ || silent < config_.reconnect_timeout) return;
-      ROS_WARN("%s: no local graph for %.1f s while uploading: connecting again",
-               config_.device_id.c_str(), silent);
+      // A server that still joins our topics is alive and knows us: its graphs
+      // are late (a saturated link, a busy server), and connecting again would
+      // only reset our tracking there. Only a much longer silence counts then.
+      const bool linked = linkedToServer();
+      if (linked && silent < kLinkedSilenceFactor * config_.reconnect_timeout) return;
+      ROS_WARN("%s: no local graph for %.1f s while uploading%s: connecting again",
+               config_.device_id.c_str(), silent,
+               linked ? "" : " and the server no longer joins our topics");
       connected_ = false;
     }
     srv.request.device_id = config_.device_id;

@@ -33,6 +33,7 @@ void DeviceConfig::validate() const {
     fail("sync_mode", "must be \"\", \"ecar\" or \"edgeslam\", got \"" + sync_mode + "\"");
   }
   if (max_pending < 1) fail("max_pending", "must be >= 1");
+  if (max_in_flight < 0) fail("max_in_flight", "must be >= 0 (0 = no limit)");
   if (!std::isfinite(connect_period) || connect_period <= 0.0)
     fail("connect_period", "must be > 0 s");
   if (!std::isfinite(reconnect_timeout) || reconnect_timeout <= 0.0) {
@@ -85,6 +86,7 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("jpeg_quality", &c.jpeg_quality);
   r.read("sync_mode", &c.sync_mode);
   r.read("max_pending", &c.max_pending);
+  r.read("max_in_flight", &c.max_in_flight);
   r.read("connect_period", &c.connect_period);
   r.read("reconnect_timeout", &c.reconnect_timeout);
   r.read("pace_in_flight", &c.pace_in_flight);

@@ -94,6 +94,8 @@ void Device::onLightTimer() {
                       "skipped",
                       config_.device_id.c_str(), u.index, light_cache_->dir().c_str(),
                       camera_info_.width, camera_info_.height);
+  } else if (uploadsBlocked()) {
+    ++light_blocked_;  // as a full device's due upload waits: this one goes
   } else {
     if (u.gravity_c) gravity_c_ = *u.gravity_c;
     if (u.T_o_c) {
@@ -118,8 +120,9 @@ void Device::onLightTimer() {
     std_msgs::Bool finished;
     finished.data = true;
     light_finished_pub_.publish(finished);
-    ROS_INFO("%s: played the %zu uploads of %s", config_.device_id.c_str(), uploads.size(),
-             config_.light.dataset.c_str());
+    ROS_INFO("%s: played the %zu uploads of %s (%zu not sent: %d in flight)",
+             config_.device_id.c_str(), uploads.size(), config_.light.dataset.c_str(),
+             light_blocked_, config_.max_in_flight);
   }
 }
 

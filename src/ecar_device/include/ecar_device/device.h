@@ -6,7 +6,8 @@
 // frame), odometry (geometry_msgs/PoseStamped T_odom_camera, same stamp as the
 // image), and the local graph topic the server names on connection.
 // Calls /ecar/connect (retrying until the service exists; again when no local
-// graph came for ~reconnect_timeout s while uploading).
+// graph came for ~reconnect_timeout s while uploading and the server no longer
+// joins the device's topics, or for 5 times that while it still does).
 // Publishes: the upload topic the server names (ecar_msgs/Upload, every
 // ~every-th frame as JPEG), pose (geometry_msgs/PoseStamped, frame map), tf
 // map -> <device>/camera, device_frame (ecar_msgs/DeviceFrame, every frame),
@@ -66,12 +67,16 @@ namespace ecar_device {
 
 /// Private parameters (~name) of a device, with their defaults; documented in config/device.yaml.
 struct DeviceConfig {
-  std::string device_id;        ///< ~device_id: default the node's namespace without '/'
-  int every = 4;                ///< ~every: upload every Nth camera frame (header.seq % every == 0)
-  int jpeg_quality = 70;        ///< ~jpeg_quality: 1..100
-  std::string sync_mode;        ///< ~sync_mode: "" (server default), "ecar" or "edgeslam"
-  int max_pending = 8;          ///< ~max_pending: uploaded frames kept waiting for their graph
-  double connect_period = 0.5;  ///< ~connect_period: s between connection attempts
+  std::string device_id;  ///< ~device_id: default the node's namespace without '/'
+  int every = 4;          ///< ~every: upload every Nth camera frame (header.seq % every == 0)
+  int jpeg_quality = 70;  ///< ~jpeg_quality: 1..100
+  std::string sync_mode;  ///< ~sync_mode: "" (server default), "ecar" or "edgeslam"
+  int max_pending = 8;    ///< ~max_pending: uploaded frames kept waiting for their graph
+  /// ~max_in_flight: an upload that is due waits (its slot's later frames stay
+  /// due) while this many uploads younger than ~reconnect_timeout await their
+  /// graph: the device's own congestion control (0 = no limit)
+  int max_in_flight = 2;
+  double connect_period = 0.5;     ///< ~connect_period: s between connection attempts
   double reconnect_timeout = 3.0;  ///< ~reconnect_timeout: s without a local graph while uploading
   int pace_in_flight = 0;          ///< ~pace_in_flight: 0 = frame_done at once
   double pace_timeout = 1.0;       ///< ~pace_timeout: s to hold a frame_done at most
@@ -193,6 +198,8 @@ class Device {
   bool holdsFrames() const;
   /// Whether the server subscribes to our uploads and we to its local graphs.
   bool linkedToServer() const;
+  /// Whether ~max_in_flight uploads await their graph (an upload due waits).
+  bool uploadsBlocked() const;
   void releaseFrameDone(bool force);
   /// Drops pending frames older than ~reconnect_timeout (their graph is lost).
   void prunePending(const ros::Time& now);
@@ -276,6 +283,7 @@ class Device {
   std::optional<ecar::UploadCache> light_cache_;
   size_t light_next_ = 0;  ///< index into light_cache_->uploads()
   bool light_started_ = false;
+  size_t light_blocked_ = 0;              ///< uploads not sent for ~max_in_flight
   ros::WallTime light_joined_;            ///< when the server joined our topics (0: not yet)
   std::optional<ros::Time> light_start_;  ///< from ~light/start_topic
   ros::Subscriber light_start_sub_;
