@@ -1,5 +1,5 @@
-// Private to the Device implementation (device.cpp, device_interaction.cpp,
-// device_light.cpp).
+// Private to the Device implementation (device.cpp, device_connection.cpp,
+// device_interaction.cpp, device_light.cpp).
 #pragma once
 
 #include <cstddef>
