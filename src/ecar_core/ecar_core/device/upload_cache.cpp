@@ -1,7 +1,6 @@
 #include "ecar_core/device/upload_cache.h"
 
-#include <unistd.h>
-
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -10,6 +9,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/io/atomic_file.h"
 
 namespace ecar {
 namespace {
@@ -20,22 +20,6 @@ std::vector<uint8_t> readFile(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return {};
   return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
-}
-
-void writeAtomically(const std::string& path, const std::vector<uint8_t>& bytes) {
-  const std::string tmp = path + ".tmp" + std::to_string(::getpid());
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    out.write(reinterpret_cast<const char*>(bytes.data()),
-              static_cast<std::streamsize>(bytes.size()));
-    if (!out) throw Error("upload cache: cannot write " + tmp);
-  }
-  std::error_code ec;
-  fs::rename(tmp, path, ec);
-  if (ec) {
-    fs::remove(tmp, ec);
-    throw Error("upload cache: cannot rename " + tmp + " to " + path);
-  }
 }
 
 /// The gravity uploaded with frame i: the dataset's, else the last IMU sample
@@ -91,7 +75,7 @@ UploadCache UploadCache::build(const Dataset& dataset, const UploadCacheConfig& 
       if (!cv::imencode(".jpg", gray, u.jpeg, params)) {
         throw Error("upload cache: cannot encode " + dataset.frame(i).image_path);
       }
-      writeAtomically(path, u.jpeg);
+      writeFileAtomically(path, u.jpeg, "upload cache entry " + path);
       ++cache.encoded_;
     }
     cache.bytes_ += u.jpeg.size();

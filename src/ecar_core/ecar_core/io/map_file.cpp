@@ -1,11 +1,7 @@
 #include "ecar_core/io/map_file.h"
 
-#include <fcntl.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -14,6 +10,7 @@
 #include <set>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/io/atomic_file.h"
 
 namespace ecar {
 namespace {
@@ -29,18 +26,6 @@ bool validSectionName(const std::string& name) {
   if (name.empty() || name.size() > 255) return false;
   for (const char c : name) {
     if (c < 0x21 || c > 0x7e) return false;
-  }
-  return true;
-}
-
-// Writes all of `bytes` to the open descriptor `fd`.
-bool writeAll(int fd, const std::vector<uint8_t>& bytes) {
-  size_t done = 0;
-  while (done < bytes.size()) {
-    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) return false;
-    done += static_cast<size_t>(n);
   }
   return true;
 }
@@ -85,40 +70,7 @@ std::vector<uint8_t> MapFileWriter::serialize() const {
 }
 
 void MapFileWriter::write(const std::string& path) const {
-  const std::vector<uint8_t> bytes = serialize();
-  // A name of its own per write: two writers of one path never share it.
-  static std::atomic<uint32_t> writes{0};
-  const std::string tmp =
-      path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(writes++);
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) {
-    throw Error("map file " + quoted(path) + ": cannot create its temporary file " + quoted(tmp) +
-                ": " + errnoText());
-  }
-  if (!writeAll(fd, bytes) || ::fsync(fd) != 0) {
-    const std::string why = errnoText();
-    ::close(fd);
-    ::unlink(tmp.c_str());
-    throw Error("map file " + quoted(path) + ": writing " + quoted(tmp) + " failed: " + why);
-  }
-  if (::close(fd) != 0) {
-    const std::string why = errnoText();
-    ::unlink(tmp.c_str());
-    throw Error("map file " + quoted(path) + ": closing " + quoted(tmp) + " failed: " + why);
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    const std::string why = errnoText();
-    ::unlink(tmp.c_str());
-    throw Error("map file " + quoted(path) + ": cannot rename " + quoted(tmp) + " to it: " + why);
-  }
-  // The rename itself reaches the disk with its directory.
-  std::string dir = std::filesystem::path(path).parent_path().string();
-  if (dir.empty()) dir = ".";
-  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
-  }
+  writeFileAtomically(path, serialize(), "map file " + quoted(path));
 }
 
 // ---------------------------------------------------------------- MapFileReader

@@ -60,8 +60,8 @@
 #include "ecar_core/device/device_objects.h"
 #include "ecar_core/device/device_tracker.h"
 #include "ecar_core/device/upload_cache.h"
+#include "ecar_core/device/upload_schedule.h"
 #include "ecar_device/DeviceTuningConfig.h"
-#include "ecar_device/upload_schedule.h"
 
 namespace ecar_device {
 
@@ -241,7 +241,7 @@ class Device {
   std::string upload_topic_, local_graph_topic_;
   std::deque<Pending> pending_;
   std::vector<cv::Mat> free_images_;  ///< buffers of released pending frames
-  UploadSchedule upload_schedule_;
+  ecar::UploadSchedule upload_schedule_;
   bool has_last_seq_ = false;
   uint32_t last_seq_ = 0;
   std::optional<uint32_t> held_done_;

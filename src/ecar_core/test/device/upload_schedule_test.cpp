@@ -1,11 +1,11 @@
 // Uploads every Nth frame, also when the device skipped frames while busy.
-#include "ecar_device/upload_schedule.h"
+#include "ecar_core/device/upload_schedule.h"
 
 #include <vector>
 
 #include <gtest/gtest.h>
 
-namespace ecar_device {
+namespace ecar {
 namespace {
 
 std::vector<uint32_t> uploadsOf(const std::vector<uint32_t>& seqs, int every) {
@@ -48,4 +48,4 @@ TEST(UploadSchedule, APlayerStartingOverStartsANewSlot) {
 }
 
 }  // namespace
-}  // namespace ecar_device
+}  // namespace ecar

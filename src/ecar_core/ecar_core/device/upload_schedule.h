@@ -4,7 +4,7 @@
 #include <cstdint>
 #include <optional>
 
-namespace ecar_device {
+namespace ecar {
 
 /// Every `every` frames by header.seq: the first frame that comes in each slot
 /// of that many (seq / every), so that frames skipped while the device was busy
@@ -25,4 +25,4 @@ class UploadSchedule {
   std::optional<uint32_t> last_slot_;
 };
 
-}  // namespace ecar_device
+}  // namespace ecar

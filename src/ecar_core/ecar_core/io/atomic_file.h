@@ -1,0 +1,17 @@
+// Writing a file so that a reader sees the old file or the new one, never a part.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace ecar {
+
+/// Writes `bytes` to a temporary file beside `path` (`path`.tmp.<pid>.<n>),
+/// flushes it to disk, renames it over `path` and flushes the directory.
+/// Throws ecar::Error starting with `what` (e.g. "map file 'x'"), naming the
+/// step and the system error; the temporary file is removed.
+void writeFileAtomically(const std::string& path, const std::vector<uint8_t>& bytes,
+                         const std::string& what);
+
+}  // namespace ecar
