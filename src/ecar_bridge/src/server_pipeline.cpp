@@ -36,6 +36,7 @@ ecar_msgs::TrackedFrame toMsg(const ecar::TrackResult& result, const FrameMeta& 
   m.keyframe_id = result.new_keyframe ? result.new_keyframe->value : 0;
   m.upload_sent = meta.upload_sent;
   m.server_received = meta.server_received;
+  m.receive_time = meta.receive_time;
   m.tracking_time = meta.tracking_time;
   m.map_epoch = result.map_epoch;
   m.map_id = result.map.value;
@@ -77,6 +78,7 @@ ecar::TrackResult fromMsg(const ecar_msgs::TrackedFrame& msg, FrameMeta* meta) {
     meta->stamp = msg.header.stamp;
     meta->upload_sent = msg.upload_sent;
     meta->server_received = msg.server_received;
+    meta->receive_time = msg.receive_time;
     meta->tracking_time = msg.tracking_time;
     meta->reset = msg.reset;
   }

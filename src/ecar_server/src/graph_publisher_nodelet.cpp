@@ -194,6 +194,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
     out->header.stamp = frame_msg.header.stamp;
     out->upload_sent = frame_msg.upload_sent;
     out->server_received = frame_msg.server_received;
+    out->receive_time = frame_msg.receive_time;
     out->tracking_time = frame_msg.tracking_time;
     out->server_sent = ros::Time::now();
     out->server_time = static_cast<float>((out->server_sent - frame_msg.server_received).toSec());

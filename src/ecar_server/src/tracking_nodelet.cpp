@@ -139,6 +139,7 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
                             camera->width(), camera->height());
       return;
     }
+    const ros::Time t_start = ros::Time::now();
     const auto t0 = std::chrono::steady_clock::now();
     const ecar::TrackResult result =
         graph_->track(info->id, image, msg->header.stamp.toSec(), msg->frame_index,
@@ -149,6 +150,7 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
     meta.stamp = msg->header.stamp;
     meta.upload_sent = msg->sent;
     meta.server_received = received;
+    meta.receive_time = static_cast<float>((t_start - received).toSec());
     meta.tracking_time =
         std::chrono::duration<float>(std::chrono::steady_clock::now() - t0).count();
     meta.reset = content.reset;

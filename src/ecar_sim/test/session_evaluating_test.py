@@ -41,7 +41,8 @@ def write_dataset(folder, frames):
 def metric_row(device, frame, latency, bytes_down=1000, points=50, server=5.0):
     return {"device": device, "frame": frame, "bytes_up": 20000, "bytes_down": bytes_down,
             "points": points, "positions": 3, "latency_ms": latency, "upload_ms": 1.0,
-            "server_ms": server, "align_ms": 0.5 * server, "download_ms": 0.5,
+            "server_ms": server, "receive_ms": 0.2 * server, "align_ms": 0.5 * server,
+            "send_ms": 0.3 * server, "download_ms": 0.5,
             "device_tracking_ms": 3.0}
 
 
@@ -102,6 +103,10 @@ class DeviceSummaryTest(unittest.TestCase):
         self.assertEqual((s["device_ate_se3_m"], s["server_ate_sim3_m"]), (0.5, 0.0123))
         self.assertEqual(len(calls), 4)
         self.assertEqual(s["median_latency_ms"], 20.0)
+        # This device's link: its parts of the latency and its bytes each way.
+        self.assertEqual((s["upload_ms_median"], s["download_ms_median"]), (1.0, 0.5))
+        self.assertEqual(s["upload_bytes"], 20000 * len([r for r in records().metrics
+                                                          if r["device"] == "device_0"]))
         # TUM: a header, then frames 2..5 stamped with the dataset's times.
         self.assertEqual(len(server_lines), 5)
         self.assertEqual(server_lines[1].split()[:2], ["100.066667", "2.030000"])
@@ -177,6 +182,8 @@ class OverallTest(unittest.TestCase):
         self.assertEqual((o["upload_ms_median"], o["align_ms_median"],
                           o["server_other_ms_median"], o["download_ms_median"]),
                          (1.0, 2.5, 2.5, 0.5))
+        # server_other splits into receive (worker queue, JPEG decoding) and send.
+        self.assertEqual((o["receive_ms_median"], o["send_ms_median"]), (1.0, 1.5))
         # The graph without points is left out: 1000/50 and 2000/100.
         self.assertEqual(o["bytes_per_point_median"], 20.0)
         self.assertEqual(o["device_tracking_ms_median"], 9.0)
@@ -243,7 +250,8 @@ def summary():
         "overall": {"local_graph_bytes_median": 5772.0, "local_graph_bytes_p95": 7630.4,
                     "bytes_per_point_median": 19.23, "latency_ms_median": 21.8,
                     "latency_ms_p95": 46.44, "server_ms_median": 19.6, "upload_ms_median": 1.2,
-                    "align_ms_median": 12.5, "server_other_ms_median": 7.1,
+                    "receive_ms_median": 4.0, "align_ms_median": 12.5,
+                    "send_ms_median": 3.1, "server_other_ms_median": 7.1,
                     "download_ms_median": 0.4},
         "planes": {"planes": 1, "labelled_right": 1, "found": ["floor"], "removed": 2,
                    "other_maps": 1,
@@ -272,8 +280,9 @@ class ReportTest(unittest.TestCase):
                 "server n/a",
             p + "local graph 5772 B median (p95 7630 B), 19.2 B per tracked point; latency 21.8 ms "
                 "median (p95 46.4); server 19.6 ms median",
-            p + "latency's parts, medians: upload 1.2 ms, on the server 19.6 ms (align 12.5, "
-                "queueing, decoding and composing 7.1), download 0.4 ms",
+            p + "latency's parts, medians: upload 1.2 ms, on the server 19.6 ms (receive 4.0: "
+                "worker queue and JPEG decoding; align 12.5; send 3.1: composing and "
+                "publishing), download 0.4 ms",
             p + "planes: 1, labelled right 1 (floor), 2 removed by the server (fused), 1 left in "
                 "merged maps; 1 floor on floor 1.4 cm 0.5 deg",
             p + "VOs (grid attach, graph share): 18 objects, 293 changes; success 100.0% overall, "

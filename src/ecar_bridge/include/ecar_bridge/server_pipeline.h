@@ -29,6 +29,7 @@ struct FrameMeta {
   ros::Time stamp;             ///< capture time (Upload.header.stamp)
   ros::Time upload_sent;       ///< Upload.sent
   ros::Time server_received;   ///< server clock at reception
+  float receive_time = 0.0f;   ///< seconds from reception to the start of alignment
   float tracking_time = 0.0f;  ///< seconds
   bool reset = false;          ///< Upload.reset
 };

@@ -42,10 +42,13 @@ def parts_vs_devices(rows, path):
         rs = sorted((r for r in rows if r["mode"] == mode), key=lambda r: r["devices"])
         n = [r["devices"] for r in rs]
         for key, label in (("upload_scaled_ms_median", "device upload"),
+                           ("receive_ms_median", "server receive"),
                            ("align_ms_median", "server align"),
-                           ("server_other_ms_median", "server receive + send"),
+                           ("send_ms_median", "server send"),
                            ("download_scaled_ms_median", "device download")):
-            ax.plot(n, [r[key] for r in rs], "o-", label=label)
+            pts = [(k, r.get(key)) for k, r in zip(n, rs) if r.get(key) is not None]
+            if pts:
+                ax.plot(*zip(*pts), "o-", label=label)
         ax.set_yscale("log")
         ax.set_xlabel("devices")
         ax.set_ylabel("median (ms)")

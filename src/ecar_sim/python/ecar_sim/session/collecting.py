@@ -99,7 +99,9 @@ class Records:
             "device": m.device_id, "frame": m.frame_index, "bytes_up": m.bytes_up,
             "bytes_down": m.bytes_down, "points": m.points, "positions": m.positions,
             "latency_ms": 1e3 * m.latency, "upload_ms": 1e3 * m.upload_time,
-            "server_ms": 1e3 * m.server_time, "align_ms": 1e3 * m.align_time,
+            "server_ms": 1e3 * m.server_time, "receive_ms": 1e3 * m.receive_time,
+            "align_ms": 1e3 * m.align_time,
+            "send_ms": 1e3 * (m.server_time - m.receive_time - m.align_time),
             "download_ms": 1e3 * m.download_time,
             "device_tracking_ms": 1e3 * m.tracking_time_device,
         }

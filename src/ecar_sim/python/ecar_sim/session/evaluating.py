@@ -25,8 +25,8 @@ from ecar_sim.session import maps
 from ecar_sim.session.datasets import read_frame_times
 
 METRICS_FIELDS = ["device", "frame", "bytes_up", "bytes_down", "points", "positions",
-                  "latency_ms", "upload_ms", "server_ms", "align_ms", "download_ms",
-                  "device_tracking_ms"]
+                  "latency_ms", "upload_ms", "server_ms", "receive_ms", "align_ms",
+                  "send_ms", "download_ms", "device_tracking_ms"]
 
 
 def percentile(values, q):
@@ -129,6 +129,10 @@ def device_summary(device, dataset, records, traj_dir, env, ate_rmse=ate, final=
         "server_ate_se3_m": traj_ate(srv_file, server, False),
         "server_ate_sim3_m": traj_ate(srv_file, server, True),
         "median_latency_ms": rnd(percentile([r["latency_ms"] for r in rows], 50), 2),
+        "upload_ms_median": rnd(percentile([r["upload_ms"] for r in rows], 50), 2),
+        "download_ms_median": rnd(percentile([r["download_ms"] for r in rows], 50), 2),
+        "upload_bytes": sum(r["bytes_up"] for r in rows),
+        "download_bytes": sum(r["bytes_down"] for r in rows),
         **in_final.summary(all_server),
     }
 
@@ -153,10 +157,13 @@ def overall_summary(devices, records, time_scale=1.0):
         "latency_ms_p95": rnd(percentile([r["latency_ms"] for r in rows], 95), 2),
         "server_ms_median": rnd(percentile([r["server_ms"] for r in rows], 50), 2),
         "server_ms_p95": rnd(percentile([r["server_ms"] for r in rows], 95), 2),
-        # The latency's parts: device -> server, on the server (of it the alignment, the rest
-        # queueing, decoding and composing), server -> device.
+        # The latency's parts: device -> server (upload), on the server (receive: waiting for a
+        # worker and decoding the JPEG; align; send: composing and publishing the local graph;
+        # server_other = receive + send), server -> device (download).
         "upload_ms_median": rnd(percentile([r["upload_ms"] for r in rows], 50), 2),
+        "receive_ms_median": rnd(percentile([r.get("receive_ms", 0.0) for r in rows], 50), 2),
         "align_ms_median": rnd(percentile([r.get("align_ms", 0.0) for r in rows], 50), 2),
+        "send_ms_median": rnd(percentile([r.get("send_ms", 0.0) for r in rows], 50), 2),
         "server_other_ms_median": rnd(percentile(
             [r["server_ms"] - r.get("align_ms", 0.0) for r in rows], 50), 2),
         "download_ms_median": rnd(percentile([r["download_ms"] for r in rows], 50), 2),

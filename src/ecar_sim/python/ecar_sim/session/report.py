@@ -72,10 +72,12 @@ def print_summary(s, out):
                 fmt(sb["latency_ms_p95"]), fmt(sb["upload_ms_median"]),
                 fmt(sb["download_ms_median"])))
     if o.get("upload_ms_median") is not None:
-        log("latency's parts, medians: upload %s ms, on the server %s ms (align %s, queueing, "
-            "decoding and composing %s), download %s ms" % (
-                fmt(o["upload_ms_median"]), fmt(o["server_ms_median"]), fmt(o["align_ms_median"]),
-                fmt(o["server_other_ms_median"]), fmt(o["download_ms_median"])))
+        log("latency's parts, medians: upload %s ms, on the server %s ms (receive %s: worker "
+            "queue and JPEG decoding; align %s; send %s: composing and publishing), download "
+            "%s ms" % (
+                fmt(o["upload_ms_median"]), fmt(o["server_ms_median"]),
+                fmt(o.get("receive_ms_median")), fmt(o["align_ms_median"]),
+                fmt(o.get("send_ms_median")), fmt(o["download_ms_median"])))
     pl = s.get("planes")
     if pl:
         log("planes: %d, labelled right %d (%s), %d removed by the server (fused), %d left in "
