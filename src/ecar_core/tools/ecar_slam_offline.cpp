@@ -227,6 +227,8 @@ int run(const Args& args) {
   }
 
   std::vector<double> orb_ms, track_ms;
+  std::vector<double> jpeg_bytes;  // size of each upload's JPEG (--jpeg-quality)
+  std::vector<uint8_t> jpeg;
   std::vector<int> order;  // interleave: the device whose next upload is earliest
   size_t total_uploads = 0;
   for (const auto& r : runs) total_uploads += r.uploads.size();
@@ -257,8 +259,8 @@ int run(const Args& args) {
       std::cerr << "ecar_slam_offline: " << e.what() << " (tracked as a bad image)\n";
     }
     if (args.jpeg_quality > 0 && !image.empty()) {
-      std::vector<uint8_t> jpeg;
       cv::imencode(".jpg", image, jpeg, {cv::IMWRITE_JPEG_QUALITY, args.jpeg_quality});
+      jpeg_bytes.push_back(static_cast<double>(jpeg.size()));
       image = cv::imdecode(jpeg, cv::IMREAD_GRAYSCALE);
     }
     const std::optional<ecar::SE3> odom = metric ? f.T_o_c_odom : std::optional<ecar::SE3>();
@@ -374,6 +376,9 @@ int run(const Args& args) {
   summary["alignment"] = metric ? "se3" : "sim3";
   summary["every"] = args.every;
   summary["jpeg_quality"] = args.jpeg_quality;
+  // Median upload JPEG size, bytes (null without --jpeg-quality).
+  summary["jpeg_bytes_median"] =
+      jpeg_bytes.empty() ? nlohmann::json() : nlohmann::json(percentile(jpeg_bytes, 0.5));
   ecar::Sim3 S;
   bool have_ate = est_all.size() >= 3;
   if (have_ate) {

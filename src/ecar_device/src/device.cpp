@@ -343,10 +343,19 @@ void Device::publishHeldUpload() {
 
 void Device::publishResult(const std_msgs::Header& image_header, const cv::Mat& gray,
                            const ecar::DeviceTrackResult& r, bool uploaded) {
-  device_frame_pub_.publish(ecar_bridge::toMsg(
+  ecar_msgs::DeviceFrame frame = ecar_bridge::toMsg(
       config_.device_id, image_header.stamp, config_.map_frame, r,
       static_cast<uint32_t>(tracker_->numKeyFrames()), static_cast<uint32_t>(tracker_->numPoints()),
-      uploaded, objects_.objects()));
+      uploaded, objects_.objects());
+  frame.object_received.reserve(frame.object_ids.size());
+  for (size_t i = 0; i < frame.object_ids.size(); ++i) {
+    const auto it = object_arrival_.find(frame.object_ids[i]);
+    frame.object_received.push_back(it != object_arrival_.end() &&
+                                            it->second.first == frame.object_versions[i]
+                                        ? it->second.second
+                                        : ros::Time());
+  }
+  device_frame_pub_.publish(frame);
   std_msgs::Header header;
   header.stamp = image_header.stamp;
   header.frame_id = config_.map_frame;
@@ -441,6 +450,7 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
   if (msg->map_id != 0) map_id_ = msg->map_id;
   if (!graph.planes.empty() || !graph.objects.empty() || !graph.removed_planes.empty()) {
     objects_.applyGraph(graph.planes, graph.objects, graph.removed_planes);
+    noteObjectArrivals();
   }
   if (ok_status && (!T_w_c_ || msg->header.stamp > pose_stamp_)) {
     T_w_c_ = graph.T_w_c;
@@ -491,6 +501,7 @@ void Device::changeEpoch(uint32_t epoch, const char* why) {
 void Device::dropLocalMap() {
   if (tracker_) tracker_->clear();
   objects_.clear();
+  object_arrival_.clear();
   T_w_c_.reset();
   reset_next_ = true;
 }

@@ -33,8 +33,13 @@ void Device::onTouch(const ecar_msgs::TouchConstPtr& msg) {
     ROS_WARN_THROTTLE(kWarnPeriod, "%s: touch dropped: %s", id, e.what());
     return;
   }
+  applyTouch(touch, msg->header.stamp.isZero() ? ros::Time::now() : msg->header.stamp);
+}
+
+void Device::applyTouch(const ecar::Touch& touch, const ros::Time& stamp) {
+  const char* id = config_.device_id.c_str();
   // A stroke or drag goes on from the last pose; a new one needs a recent pose.
-  const bool begin = msg->phase == ecar_msgs::Touch::BEGIN;
+  const bool begin = touch.phase == ecar::TouchPhase::kBegin;
   if (!camera_ || !T_w_c_ ||
       (begin && (last_image_stamp_ - pose_stamp_).toSec() > config_.touch_pose_timeout)) {
     ROS_WARN_THROTTLE(kWarnPeriod, "%s: touch dropped: no pose within ~touch_pose_timeout", id);
@@ -43,7 +48,7 @@ void Device::onTouch(const ecar_msgs::TouchConstPtr& msg) {
   requests_.clear();
   objects_.touch(touch, *T_w_c_, *camera_, &requests_);
   std_msgs::Header header;
-  header.stamp = msg->header.stamp.isZero() ? ros::Time::now() : msg->header.stamp;
+  header.stamp = stamp;
   header.frame_id = config_.map_frame;
   for (ecar::VoRequest& r : requests_) {
     r.device = config_.device_id;
@@ -65,6 +70,7 @@ void Device::onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg
   }
   std::string what;
   if (objects_.applyResult(ecar_bridge::fromMsg(*msg), &what)) {
+    noteObjectArrivals();
     ROS_DEBUG("%s: %s", id, what.c_str());
   } else {
     ROS_WARN_THROTTLE(0.5, "%s: %s", id, what.c_str());
@@ -76,9 +82,27 @@ void Device::onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg) {
   try {
     graph_objects_.assign(1, ecar_bridge::fromMsg(*msg, "object"));
     objects_.applyGraph({}, graph_objects_);
+    noteObjectArrivals();
   } catch (const ecar::Error& e) {
     ROS_WARN_THROTTLE(kWarnPeriod, "%s: %s dropped: %s", config_.device_id.c_str(),
                       config_.direct_objects_topic.c_str(), e.what());
+  }
+}
+
+void Device::noteObjectArrivals() {
+  const ros::Time now = ros::Time::now();
+  const auto& held = objects_.objects();
+  for (const auto& [object, vo] : held) {
+    auto& [version, arrived] = object_arrival_[object.value];
+    if (version != vo.version || arrived.isZero()) {
+      version = vo.version;
+      arrived = now;
+    }
+  }
+  if (object_arrival_.size() > held.size()) {  // some were deleted or dropped with the map
+    for (auto it = object_arrival_.begin(); it != object_arrival_.end();) {
+      it = held.count(ecar::ObjectId(it->first)) ? std::next(it) : object_arrival_.erase(it);
+    }
   }
 }
 

@@ -2,8 +2,10 @@
 // topics and no image encoding. It plays the uploads of a dataset, encoded once
 // into an ecar::UploadCache, at the dataset's upload rate (times ~light/rate),
 // uploads each exactly as a full device does, and tracks only those frames, so
-// its keyframe queue is built from the local graphs as on a full device. Many
-// fit in one nodelet manager.
+// its keyframe queue is built from the local graphs as on a full device. The
+// dataset's scripted touches are replayed at the uploaded frames (those of the
+// frames in between at the next one), so light devices draw VOs too. Many fit
+// in one nodelet manager.
 #include <std_msgs/Bool.h>
 #include <std_msgs/Time.h>
 #include <opencv2/imgcodecs.hpp>
@@ -20,6 +22,17 @@ namespace ecar_device {
 using device_internal::kOdometryKept;
 using device_internal::kWarnPeriod;
 
+namespace {
+constexpr double kTicksPerUpload = 10.0;
+
+/// A fraction in [0, 1) fixed by the device's name (FNV-1a): its upload phase.
+double phaseOf(const std::string& name) {
+  uint32_t h = 2166136261u;
+  for (const unsigned char c : name) h = (h ^ c) * 16777619u;
+  return static_cast<double>(h % 1000u) / 1000.0;
+}
+}  // namespace
+
 void Device::startLight() {
   const DeviceConfig::Light& light = config_.light;
   const ros::WallTime started = ros::WallTime::now();
@@ -32,10 +45,7 @@ void Device::startLight() {
   light_cache_ = ecar::UploadCache::build(dataset, cache);
   const auto& uploads = light_cache_->uploads();
   if (uploads.empty()) throw ecar::Error("~light/dataset: " + light.dataset + " has no frames");
-  if (!dataset.touches().empty()) {
-    ROS_WARN("%s: a light device does not replay the %zu scripted touches of %s",
-             config_.device_id.c_str(), dataset.touches().size(), light.dataset.c_str());
-  }
+  light_touches_ = dataset.touches();
   // The camera, as a camera_info would bring it (this also connects).
   onCameraInfo(boost::make_shared<sensor_msgs::CameraInfo>(
       ecar_bridge::toMsg(dataset.camera(), std_msgs::Header())));
@@ -51,14 +61,16 @@ void Device::startLight() {
                                                        light_start_ = msg->data;
                                                      });
   }
-  light_timer_ = nh_.createSteadyTimer(ros::WallDuration(period),
+  light_period_ = ros::WallDuration(period);
+  // Ticks a tenth of the period: the uploads keep their phase within that.
+  light_timer_ = nh_.createSteadyTimer(ros::WallDuration(period / kTicksPerUpload),
                                        [this](const ros::SteadyTimerEvent&) { onLightTimer(); });
   ROS_INFO(
-      "%s: light device on %s: %zu uploads every %.1f ms (%zu encoded now, %.1f MB in %s, "
-      "%.2f s)",
+      "%s: light device on %s: %zu uploads every %.1f ms, %zu scripted touches (%zu encoded "
+      "now, %.1f MB in %s, %.2f s)",
       config_.device_id.c_str(), light.dataset.c_str(), uploads.size(), 1000.0 * period,
-      light_cache_->encoded(), light_cache_->bytes() / 1e6, light_cache_->dir().c_str(),
-      (ros::WallTime::now() - started).toSec());
+      light_touches_.size(), light_cache_->encoded(), light_cache_->bytes() / 1e6,
+      light_cache_->dir().c_str(), (ros::WallTime::now() - started).toSec());
 }
 
 void Device::onLightTimer() {
@@ -78,9 +90,19 @@ void Device::onLightTimer() {
       return;
     }
     light_started_ = true;
-    ROS_INFO("%s: joined the server: playing%s", config_.device_id.c_str(),
-             listened ? "" : " (nobody subscribes device_frame and the metrics yet)");
+    // Started together on the start topic: each device at its own phase.
+    const double phase = config_.light.start_topic.empty() ? 0.0 : phaseOf(config_.device_id);
+    light_next_due_ = now + ros::WallDuration(phase * light_period_.toSec());
+    ROS_INFO("%s: joined the server: playing%s, phase %.0f%% of the upload period",
+             config_.device_id.c_str(),
+             listened ? "" : " (nobody subscribes device_frame and the metrics yet)",
+             100.0 * phase);
   }
+  const ros::WallTime now = ros::WallTime::now();
+  if (now < light_next_due_) return;
+  // On schedule; after a stall, go on from now rather than catch up in a burst.
+  light_next_due_ =
+      now - light_next_due_ > light_period_ ? now + light_period_ : light_next_due_ + light_period_;
   const ecar::CachedUpload& u = uploads[light_next_++];
   std_msgs::Header header;
   header.seq = static_cast<uint32_t>(u.index);
@@ -115,6 +137,12 @@ void Device::onLightTimer() {
       pending_.back().tracking_time = static_cast<float>(r.total_ms / 1000.0);
     }
     publishResult(header, light_gray_, r, uploaded);
+    // The touches scripted up to this frame, at its pose.
+    for (; light_next_touch_ < light_touches_.size() &&
+           light_touches_[light_next_touch_].frame <= u.index;
+         ++light_next_touch_) {
+      applyTouch(light_touches_[light_next_touch_], header.stamp);
+    }
   }
   if (light_next_ == uploads.size()) {
     std_msgs::Bool finished;

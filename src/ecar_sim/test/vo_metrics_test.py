@@ -53,7 +53,8 @@ class Session:
         self.sim = sim or Similarity()
         self.devices = []
 
-    def device(self, name, xs, held, sign=1.0, wall0=0.0, pose_offset=(0, 0, 0), graphs=None):
+    def device(self, name, xs, held, sign=1.0, wall0=0.0, pose_offset=(0, 0, 0), graphs=None,
+               received=None):
         inv = np.linalg.inv(np.block([[self.sim.s * self.sim.r, self.sim.t[:, None]],
                                       [np.zeros((1, 3)), np.ones((1, 1))]]))
         frames, gt = {}, {}
@@ -64,6 +65,8 @@ class Session:
             p_map = (inv @ np.append(T[:3, 3], 1.0))[:3] + np.asarray(pose_offset)
             r_map = self.sim.r.T @ T[:3, :3]
             frames[f] = (wall0 + f, DeviceFrame.OK, tuple(p_map), rot_to_quat(r_map), dict(held(f)))
+            if received:
+                frames[f] += (dict(received(f)),)
         walls = graphs if graphs is not None else [wall0 + 0.25 * k for k in range(4 * len(xs))]
         self.devices.append(vm.DeviceRecord(name, CAMERA, frames, gt, walls))
 
@@ -168,6 +171,22 @@ class LatencyAndAgreementTest(unittest.TestCase):
         self.assertAlmostEqual(lat["median_ms"], 1500.0)
         self.assertAlmostEqual(lat["median_round_trips"], 3.0)
         self.assertEqual(lat["within_two_round_trips"], 0.0)
+
+    def test_latency_from_the_arrival_on_the_device(self):
+        # As above, but the device says version 1 arrived at wall 1.2 (between frames 1 and 2):
+        # the latency is 0.7 s, not the 1.5 s to the first frame that held it.
+        s = Session()
+        s.device("device_0", [0.5] * 6, lambda f: {3: 1})
+        s.device("device_1", [1.0] * 6, lambda f: {3: 1} if f >= 2 else {},
+                 graphs=[0.5 * k for k in range(12)],
+                 received=lambda f: {3: 1.2} if f >= 2 else {})
+        lat = s.evaluate([line(3, 1, [6.0, 1.2, 0.0], wall=0.5)])["latency"]
+        self.assertAlmostEqual(lat["median_ms"], 700.0)
+        # An arrival before the collector saw the change counts 0, never negative.
+        s.devices[1].frames = {f: e[:5] + ({3: 0.2} if f >= 2 else {},)
+                               for f, e in s.devices[1].frames.items()}
+        lat = s.evaluate([line(3, 1, [6.0, 1.2, 0.0], wall=0.5)])["latency"]
+        self.assertEqual(lat["median_ms"], 0.0)
 
     def test_agreement_reflects_pose_error(self):
         sim = Similarity(2.0, quat_to_rot((0.0, 0.0, 0.38268343, 0.92387953)),

@@ -37,6 +37,8 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include <dynamic_reconfigure/server.h>
@@ -114,7 +116,10 @@ struct DeviceConfig {
     double wait_subscribers = 5.0;
     /// ~light/start_topic: "" = play once joined (and listened to); else also
     /// wait for a std_msgs/Time on this topic and play from that wall time on,
-    /// so that many light devices start together
+    /// so that many light devices start together. Each then delays its first
+    /// upload by a fraction of the upload period fixed by its name, as phones
+    /// whose cameras were not started in step: devices in step would all wait
+    /// a whole period for a VO accepted just after their uploads.
     std::string start_topic;
   } light;
 
@@ -160,6 +165,12 @@ class Device {
   void onOdometry(const geometry_msgs::PoseStampedConstPtr& msg);
   void onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg);
   void onTouch(const ecar_msgs::TouchConstPtr& msg);
+  /// A touch at the latest pose (mutex_ held): the interactions it makes go
+  /// to the server stamped `stamp`.
+  void applyTouch(const ecar::Touch& touch, const ros::Time& stamp);
+  /// Records when each held VO's version arrived (mutex_ held; after every
+  /// change of objects_), for DeviceFrame.object_received.
+  void noteObjectArrivals();
   void onInteractionResult(const ecar_msgs::InteractionResultConstPtr& msg);
   void onDirectObject(const ecar_msgs::VirtualObjectConstPtr& msg);
   /// A connection attempt (from the connection thread), then the frame held
@@ -259,6 +270,8 @@ class Device {
   std::vector<ecar::VoRequest> requests_;           ///< scratch of onTouch
   std::vector<ecar::ScreenLine> draw_lines_;        ///< scratch of drawObjects
   std::vector<ecar::VirtualObject> graph_objects_;  ///< scratch of onDirectObject
+  /// Object id -> (version held, device clock when that version arrived).
+  std::unordered_map<uint32_t, std::pair<uint32_t, ros::Time>> object_arrival_;
   std::string interaction_topic_;
 
   image_transport::ImageTransport image_transport_;
@@ -290,6 +303,10 @@ class Device {
   cv::Mat light_gray_;
   ros::SteadyTimer light_timer_;
   ros::Publisher light_finished_pub_;
+  ros::WallDuration light_period_;               ///< between uploads
+  ros::WallTime light_next_due_;                 ///< when the next upload is played
+  std::vector<ecar::TouchEvent> light_touches_;  ///< the dataset's scripted touches
+  size_t light_next_touch_ = 0;                  ///< index into light_touches_
 };
 
 }  // namespace ecar_device

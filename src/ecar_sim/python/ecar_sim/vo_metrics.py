@@ -32,7 +32,11 @@ Definitions (all times are wall-clock seconds on the session's one machine):
 - Interaction-to-visible latency: for every accepted change of a VO, and every
   other device whose ground-truth view showed the VO at that moment, the time
   until that device first held the version (or a newer one), in seconds and in
-  that device's round trips.
+  that device's round trips. The change's time is when the session's collector
+  got it from the server (/ecar/objects); the device's is when the version
+  arrived on it (DeviceFrame.object_received; without it, the first frame that
+  held it). Both are wall clocks of the one machine; a device that got it before
+  the collector counts 0.
 - Position agreement: where a device draws a VO in the real world, that is the
   VO's map position seen from the device's own pose estimate, put into the world
   with the frame's ground-truth camera. For each VO version seen by two or more
@@ -105,7 +109,8 @@ class Timeline:
 class DeviceRecord:
     """What one device did and saw.
 
-    frames: {frame_index: (wall, status, position, quaternion xyzw, {object_id: version})},
+    frames: {frame_index: (wall, status, position, quaternion xyzw, {object_id: version}[,
+            {object_id: wall time the held version arrived on the device}])},
             status: DeviceFrame.NOT_INITIALISED, OK or LOST; pose = the device's own estimate
             (map).
     gt:     {frame_index: (4x4 T_world_camera)}
@@ -123,6 +128,14 @@ class DeviceRecord:
 
 
 # ---------------------------------------------------------------- evaluation
+
+
+def arrival(frame, object_id, frame_wall):
+    """When the object held in `frame` arrived on the device: the device's record of it
+    (DeviceFrame.object_received) when the frame has one, else the frame's own arrival (a frame
+    is published after the object came, so that overstates the latency by up to a frame)."""
+    received = frame[5].get(object_id) if len(frame) > 5 else None
+    return frame_wall if received is None else min(received, frame_wall)
 
 
 def _pct(values, q):
@@ -223,7 +236,7 @@ class VoEvaluator:
             order = sorted(dev.frames, key=lambda f: dev.frames[f][0])
             walls = [dev.frames[f][0] for f in order]
             for f in sorted(dev.frames):
-                wall, status, pos, quat, held = dev.frames[f]
+                wall, status, pos, quat, held = dev.frames[f][:5]
                 started = started or status != DeviceFrame.NOT_INITIALISED
                 if not started or f not in dev.gt:
                     continue
@@ -321,15 +334,17 @@ class VoEvaluator:
                             dev.frames[first][1] == DeviceFrame.NOT_INITIALISED or \
                             not self.visible(dev, first, state):
                         continue
-                    got = next((w for w, f in frames[k:]
+                    got = next(((w, f) for w, f in frames[k:]
                                 if dev.frames[f][4].get(oid, 0) >= state.version), None)
                     if got is None:
                         missed += 1
                         continue
-                    seconds.append(got - state.wall)
+                    got = arrival(dev.frames[got[1]], oid, got[0])
+                    took = max(0.0, got - state.wall)
+                    seconds.append(took)
                     rt = dev.round_trip()
                     if rt:
-                        trips.append((got - state.wall) / rt)
+                        trips.append(took / rt)
         return {
             "changes_measured": len(seconds),
             "never_received": missed,

@@ -8,12 +8,12 @@ the summary scales the link's parts back). Writes e2_e3.csv, e2_latency.png, e3_
 returns the report's section.
 """
 
-import csv
 import json
 import os
 import subprocess
 
 from ecar_sim.reproduce import plots
+from ecar_sim.reproduce.table import parse_rows, write_rows
 
 # The paper's sync latency (ms) with 1 and with 20 devices.
 PAPER_LATENCY = {"ecar": {1: 53.0, 20: 69.0}, "edgeslam": {1: 63.0, 20: 111.0}}
@@ -21,22 +21,38 @@ FIELDS = ["mode", "devices", "latency_ms_median", "latency_ms_p95", "latency_sca
           "upload_ms_median", "upload_scaled_ms_median", "server_ms_median", "receive_ms_median",
           "align_ms_median", "send_ms_median", "server_other_ms_median", "download_ms_median", "download_scaled_ms_median",
           "up_utilisation", "down_utilisation", "local_graph_bytes_median",
-          "upload_bytes_median", "round_trips", "time_scale", "frames", "jpeg_quality"]
+          "upload_bytes_median", "round_trips", "time_scale", "frames", "jpeg_quality",
+          "vo_latency_ms_median", "vo_latency_ms_p95", "vo_changes_measured",
+          "vo_never_received"]
 
 
-def run_point(root, out, mode, devices, frames, rate, quality):
+def counts(quick):
+    """The numbers of devices of the sweep."""
+    return [1, 4, 10] if quick else [1, 2, 5, 10, 15, 20]
+
+
+def settings(quick):
+    """Frames per device, playback rate (time scale) and JPEG quality of the sweep's sessions.
+    device_0's strokes (frames 95-118 of the corridor scene) are in every session."""
+    return (120, 0.25, 70) if quick else (300, 0.25, 70)
+
+
+def run_point(root, out, mode, devices, frames, rate, quality, vo_share="graph"):
     """One session; returns its CSV row (from summary.json)."""
-    folder = os.path.join(out, "runs", "%s_%02d" % (mode, devices))
+    folder = os.path.join(out, "runs", "%s%s_%02d" % (
+        mode, "_direct" if vo_share == "direct" else "", devices))
     cmd = ["rosrun", "ecar_sim", "run_session", "--scene",
            os.path.join(root, "config", "scenes", "corridor.yaml"), "--devices", str(devices),
            "--light", "--link", "campus", "--rate", "%g" % rate, "--frames", str(frames),
-           "--sync-mode", mode, "--jpeg-quality", str(quality), "--out", folder]
+           "--sync-mode", mode, "--jpeg-quality", str(quality), "--vo-share", vo_share,
+           "--out", folder]
     print("[reproduce] " + " ".join(cmd), flush=True)
     with open(folder + ".log", "w") as log:
         subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, check=True)
     with open(os.path.join(folder, "summary.json")) as f:
         s = json.load(f)
     o, link = s["overall"], s["link"] or {}
+    vo = (s.get("vo") or {}).get("latency") or {}
     back = o.get("scaled_back") or {}
     return {
         "mode": mode, "devices": devices,
@@ -54,45 +70,30 @@ def run_point(root, out, mode, devices, frames, rate, quality):
         "local_graph_bytes_median": o["local_graph_bytes_median"],
         "upload_bytes_median": o["upload_bytes_median"], "round_trips": o["round_trips"],
         "time_scale": rate, "frames": frames, "jpeg_quality": quality,
+        "vo_latency_ms_median": vo.get("median_ms"), "vo_latency_ms_p95": vo.get("p95_ms"),
+        "vo_changes_measured": vo.get("changes_measured"),
+        "vo_never_received": vo.get("never_received"),
     }
 
 
 def run(root, out, quick):
     """Runs the sweep into out/; returns the REPORT.md section (markdown)."""
-    counts = [1, 5, 10, 20] if quick else [1, 2, 5, 10, 15, 20]
-    frames, rate, quality = (200, 0.25, 70) if quick else (300, 0.25, 70)
+    frames, rate, quality = settings(quick)
     os.makedirs(os.path.join(out, "runs"), exist_ok=True)
     rows = [run_point(root, out, mode, n, frames, rate, quality)
-            for mode in ("ecar", "edgeslam") for n in counts]
-    with open(os.path.join(out, "e2_e3.csv"), "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows(rows)
+            for mode in ("ecar", "edgeslam") for n in counts(quick)]
+    write_rows(os.path.join(out, "e2_e3.csv"), FIELDS, rows)
     return report(out, rows)
 
 
 def report(out, rows=None):
     """Plots and the report's section from rows (default: out/e2_e3.csv of an earlier run)."""
     if rows is None:
-        with open(os.path.join(out, "e2_e3.csv")) as f:
-            rows = [{k: parse(v) for k, v in r.items()} for r in csv.DictReader(f)]
+        rows = parse_rows(os.path.join(out, "e2_e3.csv"))
     plots.latency_vs_devices(rows, PAPER_LATENCY, os.path.join(out, "e2_latency.png"))
     plots.parts_vs_devices(rows, os.path.join(out, "e3_parts.png"))
     r = rows[0]
     return section(rows, r["frames"], r["time_scale"], r["jpeg_quality"])
-
-
-def parse(text):
-    """A CSV cell: the mode stays text, numbers become int or float, empty None."""
-    if text == "":
-        return None
-    try:
-        return int(text)
-    except ValueError:
-        try:
-            return float(text)
-        except ValueError:
-            return text
 
 
 # The paper's summary of its traffic figure: up to 370 % less traffic than edgeSLAM.

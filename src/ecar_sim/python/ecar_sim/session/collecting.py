@@ -19,13 +19,17 @@ import time
 import rospy
 from ecar_msgs.msg import (DeviceFrame, InteractionResult, LocalGraph, RoundTripMetrics,
                            VirtualObject)
+from sensor_msgs.msg import Image
 from std_msgs.msg import Bool
 
 # One device frame: status (DeviceFrame.NOT_INITIALISED, OK, LOST), the device's pose in the
 # map (position xyz, orientation xyzw), whether it was uploaded, its tracking time (s), the
-# wall time it arrived, and the VOs it held {object id: version}.
+# wall time it arrived, the VOs it held {object id: version} and when (wall time, device clock)
+# each held version arrived on the device {object id: seconds} (DeviceFrame.object_received; 0
+# left out).
 FrameRecord = collections.namedtuple(
-    "FrameRecord", "status position orientation uploaded tracking_time wall held")
+    "FrameRecord", "status position orientation uploaded tracking_time wall held received",
+    defaults=(None,))
 
 # Progress of one device so far: frames received, uploads, local graphs, and the wall times
 # of its first and last frame (None before the first).
@@ -114,7 +118,9 @@ class Records:
         now = time.time()
         position, orientation = pose_tuples(m.pose)
         record = FrameRecord(m.status, position, orientation, m.uploaded, m.tracking_time, now,
-                             dict(zip(m.object_ids, m.object_versions)))
+                             dict(zip(m.object_ids, m.object_versions)),
+                             {i: t.to_sec() for i, t in zip(m.object_ids, m.object_received)
+                              if not t.is_zero()})
         with self.lock:
             self.device_frames.setdefault(m.device_id, {})[m.frame_index] = record
             self.first_frame_wall.setdefault(m.device_id, now)
@@ -172,6 +178,10 @@ class Records:
             with self.lock:
                 self.finished[device] = True
 
+    def on_ar_view(self, m, device):
+        with self.lock:
+            self.ar_views[device] = m
+
     def all_finished(self):
         """(every player has finished, seconds since the last message)."""
         with self.lock:
@@ -190,10 +200,12 @@ class Records:
 class Collector(Records):
     """Records filled from the session's topics (rospy must be initialised)."""
 
-    def __init__(self, devices, metrics_publishers=None):
+    def __init__(self, devices, metrics_publishers=None, ar_views=False):
         """metrics_publishers: the nodes publishing /ecar/metrics (default one per device;
-        light devices share one nodelet manager)."""
+        light devices share one nodelet manager). ar_views: keep each device's latest ar_view
+        image (self.ar_views {device: sensor_msgs/Image})."""
         super().__init__(devices)
+        self.ar_views = {}
         sub = rospy.Subscriber
         self.subs = [sub("/ecar/metrics", RoundTripMetrics, self.on_metrics, queue_size=1000),
                      sub("/ecar/objects", VirtualObject, self.on_object, queue_size=1000)]
@@ -206,6 +218,9 @@ class Collector(Records):
                     queue_size=1000),
                 sub("/%s/player/finished" % d, Bool, self.on_finished, callback_args=d,
                     queue_size=1)]
+        if ar_views:
+            self.subs += [sub("/%s/ar_view" % d, Image, self.on_ar_view, callback_args=d,
+                              queue_size=1, buff_size=2 ** 22) for d in devices]
         # What the devices publish from their first frame on: the players start once these
         # subscriptions are connected, or those frames would be missing from the records.
         self.device_subs = [(s, 1) for s in self.subs

@@ -59,6 +59,10 @@ def build_parser(description=None):
                    help="light devices, as the paper's device simulators: all in one nodelet "
                         "manager, no players; each plays its dataset's uploads (JPEGs encoded "
                         "once, launch/light_devices.launch) and tracks only those frames")
+    p.add_argument("--ar-views", action="store_true",
+                   help="subscribe to every device's ar_view (the camera image with the VOs "
+                        "drawn; full devices only) and write each device's last one to "
+                        "OUT/ar_view_<device>.png")
     p.add_argument("--in-flight", type=int, default=1,
                    help="lockstep: uploads a device may have waiting for their local graph "
                         "before the player waits (0 = no pacing by round trip)")

@@ -81,12 +81,14 @@ def report_deaths(error):
             log("    " + line)
 
 
-def progress_text(collector, frames, fps, elapsed):
-    """The progress line of the session so far (see report.progress_line)."""
+def progress_text(collector, frames, fps, elapsed, every=1):
+    """The progress line of the session so far (see report.progress_line). every: dataset
+    frames per recorded frame (light devices record only their uploads, every `every`th)."""
     prog = collector.progress()
+    played = {d: (p.frames - 1) * every + 1 if p.frames else 0 for d, p in prog.items()}
     rate = evaluating.playback_rate(
-        {d: (p.frames, p.first_wall, p.last_wall) for d, p in prog.items()}, fps)
-    return progress_line(elapsed, {d: p.frames for d, p in prog.items()}, frames,
+        {d: (played[d], p.first_wall, p.last_wall) for d, p in prog.items()}, fps)
+    return progress_line(elapsed, played, frames,
                          {d: p.uploads for d, p in prog.items()},
                          {d: p.graphs for d, p in prog.items()}, rate)
 
@@ -153,7 +155,8 @@ def play(args, hosts, envs, devices, datasets, procs, collector, frames, fps, ti
             return time.time() - start, True
         procs.check()
         if time.time() >= next_progress:
-            log(progress_text(collector, frames, fps, time.time() - start))
+            log(progress_text(collector, frames, fps, time.time() - start,
+                              every=args.every if args.light else 1))
             next_progress += PROGRESS_PERIOD_S
         time.sleep(POLL_S)
     log("timeout after %.0f s: sequences not finished" % timeout)
@@ -210,7 +213,8 @@ def _run_on(args, out, log_dir, scene_name, devices, hosts):
     try:
         start_nodes(args, hosts, envs, port, devices, datasets, procs)
         rospy.init_node("run_session", anonymous=True, disable_signals=True)
-        collector = Collector(devices, metrics_publishers=1 if args.light else None)
+        collector = Collector(devices, metrics_publishers=1 if args.light else None,
+                              ar_views=getattr(args, "ar_views", False))
         sent_before = hosts.counters()
         wall, in_time = play(args, hosts, envs, devices, datasets, procs, collector, frames,
                              fps, timeout)
@@ -248,8 +252,29 @@ def _run_on(args, out, log_dir, scene_name, devices, hosts):
                                        link)
     evaluating.write_summary(out, summary)
     evaluating.write_metrics_csv(out, collector.metrics)
+    for d, image in sorted(collector.ar_views.items()):
+        path = os.path.join(out, "ar_view_%s.png" % d)
+        write_image(image, path)
+        log("wrote %s (frame %d)" % (path, image.header.seq))
     print_summary(summary, out)
     return 0 if in_time else 1
+
+
+def write_image(msg, path):
+    """A bgr8 or mono8 sensor_msgs/Image as a PNG file."""
+    import numpy as np
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    channels = 3 if msg.encoding in ("bgr8", "rgb8") else 1
+    img = np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.step)[:, :msg.width * channels]
+    if channels == 3:
+        img = img.reshape(msg.height, msg.width, 3)
+        if msg.encoding == "bgr8":
+            img = img[:, :, ::-1]
+        plt.imsave(path, img)
+    else:
+        plt.imsave(path, img, cmap="gray", vmin=0, vmax=255)
 
 
 def reevaluate(args):

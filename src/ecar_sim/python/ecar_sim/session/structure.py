@@ -62,7 +62,7 @@ def evaluate_vos(args, devices, datasets, records, map_to_world):
         # Frames in the final map only: before its map merged a device sees another map's
         # objects (not those of the final map) in another map's coordinates.
         in_final = maps.frames_of(records, d, final)
-        frames = {f: (e.wall, e.status, e.position, e.orientation, e.held)
+        frames = {f: (e.wall, e.status, e.position, e.orientation, e.held, e.received or {})
                   for f, e in records.device_frames.get(d, {}).items() if in_final.device(f)}
         device_records.append(vm.DeviceRecord(d, camera, frames,
                                               truth.read_groundtruth(datasets[d]),
@@ -112,7 +112,8 @@ def save_raw(path, records):
         return [p.x, p.y, p.z]
 
     raw = {
-        "device_frames": {d: {str(f): [e.status, e.position, e.orientation, e.wall, e.held]
+        "device_frames": {d: {str(f): [e.status, e.position, e.orientation, e.wall, e.held,
+                                       e.received or {}]
                               for f, e in fr.items()}
                           for d, fr in records.device_frames.items()},
         "server_poses": {d: {str(f): [p, q] for f, (p, q) in sp.items()}
@@ -140,7 +141,8 @@ class RawCollector:
             raw = json.load(f)
         self.device_frames = {
             d: {int(f): FrameRecord(e[0], tuple(e[1]), tuple(e[2]), False, 0.0, e[3],
-                                    {int(k): v for k, v in e[4].items()})
+                                    {int(k): v for k, v in e[4].items()},
+                                    {int(k): v for k, v in (e[5] if len(e) > 5 else {}).items()})
                 for f, e in fr.items()}
             for d, fr in raw["device_frames"].items()}
         self.server_poses = {d: {int(f): (tuple(p), tuple(q)) for f, (p, q) in sp.items()}
