@@ -80,6 +80,11 @@ void Device::onLightTimer() {
   // Playback starts once the server has joined our topics and someone listens
   // to what we measure (or ~light/wait_subscribers later), as a player waits.
   if (!light_started_) {
+    // The server may drop us (device_timeout) while we wait to play, e.g.
+    // while the other light devices encode their caches: unlinked, we count
+    // as a device with an upload due, so the connection thread connects again
+    // after ~reconnect_timeout (linked, nothing is due: no reconnection).
+    upload_due_since_progress_ = connected_ && !linkedToServer();
     if (!tracker_ || !connected_ || !linkedToServer()) return;
     const ros::WallTime now = ros::WallTime::now();
     if (light_joined_.isZero()) light_joined_ = now;
