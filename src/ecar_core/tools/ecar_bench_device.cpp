@@ -16,7 +16,6 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
-#include <ctime>
 #include <deque>
 #include <iostream>
 #include <string>
@@ -25,6 +24,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/device/device_tracker.h"
 #include "ecar_core/eval/trajectory_eval.h"
 #include "ecar_core/sim/motion.h"
@@ -34,6 +34,8 @@
 #include "ecar_core/sync/local_graph_composer.h"
 
 namespace {
+
+using ecar::threadCpuMs;
 
 using ecar::percentile;
 
@@ -48,12 +50,6 @@ struct Args {
 void usage() {
   std::cerr << "usage: ecar_bench_device [--scene FILE] [--device NAME] [--frames N] "
                "[--delay D] [--orb-features N]\n";
-}
-
-double threadCpuMs() {
-  timespec t;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-  return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
 }
 
 Args parse(int argc, char** argv) {

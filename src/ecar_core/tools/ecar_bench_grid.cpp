@@ -9,26 +9,22 @@
 // outliers; prints the time of PlaneSegmenter::segment and PlaneMap::integrate.
 #include <algorithm>
 #include <cstdlib>
-#include <ctime>
 #include <iostream>
 #include <random>
 #include <string>
 #include <vector>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/structure/grid_caster.h"
 #include "ecar_core/structure/grid_map.h"
 #include "ecar_core/structure/plane_map.h"
 
 namespace {
 
-// CPU time of this thread (ms): on a loaded machine, wall time overstates.
-double threadCpuMs() {
-  timespec ts;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
-}
+using ecar::threadCpuMs;
 
+// CPU time of this thread (ms): on a loaded machine, wall time overstates.
 double percentileOf(std::vector<double> v, double q) {
   std::sort(v.begin(), v.end());
   return v[std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size())))];

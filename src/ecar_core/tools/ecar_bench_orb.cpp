@@ -11,7 +11,6 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
-#include <ctime>
 #include <iostream>
 #include <string>
 #include <vector>
@@ -21,6 +20,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/eval/trajectory_eval.h"
 #include "ecar_core/sim/motion.h"
 #include "ecar_core/sim/renderer.h"
@@ -28,6 +28,8 @@
 #include "ecar_core/slam/features.h"
 
 namespace {
+
+using ecar::threadCpuMs;
 
 using ecar::percentile;
 
@@ -39,12 +41,6 @@ struct Args {
 void usage() {
   std::cerr << "usage: ecar_bench_orb [--image PATH] [--scene FILE] [--runs N]\n"
                "  (at least one of --image and --scene)\n";
-}
-
-double threadCpuMs() {
-  timespec t;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-  return t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
 }
 
 // Times `extract(frame)` over `runs` calls cycling through `frames` (after one

@@ -16,7 +16,6 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
-#include <ctime>
 #include <iostream>
 #include <numeric>
 #include <random>
@@ -26,11 +25,14 @@
 #include <opencv2/core.hpp>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/eval/trajectory_eval.h"
 #include "ecar_core/slam/matcher.h"
 #include "ecar_core/slam/place_recognition.h"
 
 namespace {
+
+using ecar::threadCpuMs;
 
 using ecar::percentile;
 
@@ -51,12 +53,6 @@ double msSince(std::chrono::steady_clock::time_point t0) {
 }
 
 // CPU time of this thread (ms): on a loaded machine, wall time overstates.
-double threadCpuMs() {
-  timespec ts;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
-}
-
 void randomDescriptor(std::mt19937_64* rng, uint8_t* out) {
   for (int i = 0; i < 4; ++i) {
     const uint64_t v = (*rng)();
