@@ -14,6 +14,7 @@
 #include <geometry_msgs/PoseStamped.h>
 #include <sensor_msgs/Imu.h>
 #include <std_msgs/Bool.h>
+#include <std_msgs/Time.h>
 #include <opencv2/imgcodecs.hpp>
 
 #include "ecar_core/common/error.h"
@@ -133,6 +134,7 @@ DatasetPlayerConfig loadDatasetPlayerConfig(const ros::NodeHandle& pnh) {
   readParam(pnh, "grayscale", "a bool", &c.grayscale);
   readParam(pnh, "shutdown_when_done", "a bool", &c.shutdown_when_done);
   readParam(pnh, "preload_mb", "an integer", &c.preload_mb);
+  readParam(pnh, "start_topic", "a string", &c.start_topic);
   c.validate();
   return c;
 }
@@ -156,6 +158,11 @@ DatasetPlayer::DatasetPlayer(ros::NodeHandle nh, DatasetPlayerConfig config)
   odom_pub_ = nh_.advertise<geometry_msgs::PoseStamped>(topics_.odometry(), 10);
   finished_pub_ = nh_.advertise<std_msgs::Bool>(topics_.player_finished(), 1, /*latch=*/true);
   touch_pub_ = nh_.advertise<ecar_msgs::Touch>(topics_.touch(), 100);
+  if (!config_.start_topic.empty()) {
+    ready_pub_ = nh_.advertise<std_msgs::Bool>(topics_.player_ready(), 1, /*latch=*/true);
+    start_sub_ = nh_.subscribe<std_msgs::Time>(
+        config_.start_topic, 1, [this](const std_msgs::TimeConstPtr& m) { start_at_ = m->data; });
+  }
   if (config_.pace_by_consumer) {
     frame_done_sub_ = nh_.subscribe(topics_.frame_done(), 10, &DatasetPlayer::onFrameDone, this);
   }
@@ -180,6 +187,7 @@ size_t DatasetPlayer::run() {
 
   preload(begin, begin + count);
   waitForSubscribers();
+  if (!waitForStart()) return 0;
   const Clock::time_point start = Clock::now();
   size_t published = 0;
   do {
@@ -415,6 +423,24 @@ void DatasetPlayer::waitForSubscribers() {
   // Give the subscribers of the other topics (camera_info, tf, ...) time to connect.
   sleepUntil(Clock::now() + std::chrono::duration_cast<Clock::duration>(
                                 std::chrono::duration<double>(config_.start_delay)));
+}
+
+bool DatasetPlayer::waitForStart() {
+  if (config_.start_topic.empty()) return true;
+  std_msgs::Bool ready;
+  ready.data = true;
+  ready_pub_.publish(ready);
+  ROS_INFO("%s: ready, waiting for a start time on %s", config_.device.c_str(),
+           start_sub_.getTopic().c_str());
+  while (ros::ok() && !start_at_) {
+    ros::spinOnce();
+    std::this_thread::sleep_for(kPollPeriod);
+  }
+  if (!start_at_) return false;
+  const double wait = (*start_at_ - ros::Time::now()).toSec();
+  if (wait <= 0.0) return true;
+  return sleepUntil(Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                                       std::chrono::duration<double>(wait)));
 }
 
 bool DatasetPlayer::sleepUntil(Clock::time_point until) {

@@ -24,8 +24,12 @@
 //                                frame i's image. Touches of a skipped
 //                                (unreadable) frame are dropped with a warning.
 //   <device>/player/finished     std_msgs/Bool, latched, true after the last frame
+//   <device>/player/ready        std_msgs/Bool, latched, true once the frames are
+//                                preloaded and the player waits for ~start_topic
+//                                (only with ~start_topic)
 // Subscribes (with ~pace_by_consumer) to <device>/frame_done, std_msgs/UInt32:
-// the header.seq of the last image the consumer has processed.
+// the header.seq of the last image the consumer has processed; (with
+// ~start_topic) to ~start_topic, std_msgs/Time: play from that time on.
 //
 // Image header: stamp = ros::Time::now() at publication, frame_id =
 // <device>/camera, seq = the number of images published before this one (0, 1,
@@ -88,6 +92,12 @@ struct DatasetPlayerConfig {
   /// many MB of images (the rest are decoded when due); 0 = decode each frame
   /// when it is due. Decoding a PNG costs more than playing it.
   int preload_mb = 1024;
+  /// ~start_topic: "" = play once the subscribers are there (after
+  /// ~start_delay); else preload, publish player/ready, then wait for a
+  /// std_msgs/Time on this topic and play from that time on, so that a test or
+  /// a runner starts several players when it chooses, whatever their preloading
+  /// took (the light devices' ~light/start_topic convention).
+  std::string start_topic;
 
   /// Throws ecar::Error naming the parameter (e.g. "~rate") of the first bad value.
   void validate() const;
@@ -135,6 +145,9 @@ class DatasetPlayer {
   ros::Time imuStamp(double t_imu, double t_frame, const ros::Time& frame_stamp) const;
 
   void waitForSubscribers();
+  /// With ~start_topic: publishes player/ready and waits for the start time;
+  /// false when ROS shut down first.
+  bool waitForStart();
   /// Sleeps until `until` (servicing callbacks); false when ROS shut down.
   bool sleepUntil(Clock::time_point until);
   /// Waits for a frame_done >= seq, at most ~ack_timeout; false on timeout.
@@ -153,6 +166,9 @@ class DatasetPlayer {
   ros::Publisher imu_pub_;
   ros::Publisher odom_pub_;
   ros::Publisher finished_pub_;
+  ros::Publisher ready_pub_;
+  ros::Subscriber start_sub_;
+  std::optional<ros::Time> start_at_;  ///< from ~start_topic
   ros::Publisher touch_pub_;
   ros::Subscriber frame_done_sub_;
   tf2_ros::TransformBroadcaster tf_broadcaster_;

@@ -17,6 +17,10 @@ comes back as one ecar_msgs/Touch with its pixel, phase, colour and width,
 stamped with its frame's image stamp, received after that image and before
 the next one.
 
+test_held_start: plays the same dataset with ~start_topic: the player reports
+player/ready and publishes nothing until it receives a start time, then
+publishes its first image no earlier than that time, and all of them.
+
 Private params: ~dataset (folder, KITTI 07 layout), ~device, ~frames,
 ~touch_scene (scene file), ~player_launch.
 """
@@ -33,7 +37,7 @@ import rospy
 import rostest
 from ecar_msgs.msg import Touch
 from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import Bool, UInt32
+from std_msgs.msg import Bool, Time, UInt32
 from tf2_msgs.msg import TFMessage
 
 PKG = "ecar_sim"
@@ -244,10 +248,87 @@ class TouchReplayTest(unittest.TestCase):
         self.assertEqual((touches[3].r, touches[3].g, touches[3].b), (255, 64, 32))
 
 
+class HeldStartTest(unittest.TestCase):
+    DEVICE = "held_dev"
+    FRAMES = 5
+    START_IN = 1.0  # s: the start time sent lies this far ahead
+
+    def setUp(self):
+        self.lock = threading.Lock()
+        self.images = []
+        self.ready = False
+        self.finished = False
+        self.tmp = tempfile.mkdtemp(prefix="ecar_held_start_")
+        self.player = None
+
+    def tearDown(self):
+        if self.player is not None and self.player.poll() is None:
+            self.player.terminate()
+            self.player.wait(timeout=20)
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def on_image(self, msg):
+        with self.lock:
+            self.images.append((rospy.Time.now(), msg))
+        self.done_pub.publish(UInt32(data=msg.header.seq))
+
+    def on_ready(self, msg):
+        with self.lock:
+            self.ready = msg.data
+
+    def on_finished(self, msg):
+        with self.lock:
+            self.finished = msg.data
+
+    def wait_for(self, what, timeout):
+        deadline = rospy.Time.now() + rospy.Duration(timeout)
+        while not rospy.is_shutdown() and rospy.Time.now() < deadline:
+            with self.lock:
+                if getattr(self, what):
+                    return True
+            rospy.sleep(0.05)
+        return False
+
+    def test_held_start(self):
+        dataset = os.path.join(self.tmp, "touch")
+        subprocess.run(["rosrun", "ecar_sim", "make_dataset", "--scene",
+                        rospy.get_param("~touch_scene"), "--device", "touch_dev", "--out",
+                        dataset, "--frames", str(self.FRAMES), "--quiet"],
+                       check=True, stdout=subprocess.DEVNULL)
+        ns = "/" + self.DEVICE
+        start_topic = ns + "/player/start"
+        self.done_pub = rospy.Publisher(ns + "/frame_done", UInt32, queue_size=100)
+        starter = rospy.Publisher(start_topic, Time, queue_size=1, latch=True)
+        rospy.Subscriber(ns + "/player/ready", Bool, self.on_ready, queue_size=1)
+        rospy.Subscriber(ns + "/player/finished", Bool, self.on_finished, queue_size=1)
+        rospy.Subscriber(ns + "/camera/image_raw", Image, self.on_image, queue_size=100)
+        self.player = subprocess.Popen(
+            ["roslaunch", rospy.get_param("~player_launch"), "dataset:=" + dataset,
+             "device:=" + self.DEVICE, "rate:=0", "pace_by_consumer:=true", "start_delay:=0.2",
+             "wait_subscribers:=20.0", "start_topic:=" + start_topic, "output:=log"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+        self.assertTrue(self.wait_for("ready", 45.0), "no true on %s/player/ready" % ns)
+        rospy.sleep(1.5)
+        with self.lock:
+            self.assertEqual(self.images, [], "the held player published before its start")
+        start = rospy.Time.now() + rospy.Duration(self.START_IN)
+        starter.publish(Time(data=start))
+        self.assertTrue(self.wait_for("finished", 30.0), "no true on %s/player/finished" % ns)
+        rospy.sleep(0.3)
+        with self.lock:
+            images = list(self.images)
+        self.assertEqual(len(images), self.FRAMES)
+        first_received, first = images[0]
+        self.assertGreaterEqual(first.header.stamp, start, "first image stamped before the start")
+        self.assertGreaterEqual(first_received, start)
+
+
 def suite():
     loader = unittest.TestLoader()
     return unittest.TestSuite([loader.loadTestsFromTestCase(PlayerTest),
-                               loader.loadTestsFromTestCase(TouchReplayTest)])
+                               loader.loadTestsFromTestCase(TouchReplayTest),
+                               loader.loadTestsFromTestCase(HeldStartTest)])
 
 
 if __name__ == "__main__":

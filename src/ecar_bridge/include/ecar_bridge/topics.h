@@ -22,6 +22,8 @@ struct DeviceTopics {
   std::string frame_done() const { return ns + "/frame_done"; }
   /// std_msgs/Bool, latched: true once the player has published every frame.
   std::string player_finished() const { return ns + "/player/finished"; }
+  /// std_msgs/Bool, latched: the player preloaded and waits for its start topic.
+  std::string player_ready() const { return ns + "/player/ready"; }
   /// ecar_msgs/Touch: the user's touches on the camera image (scripted ones from the player).
   std::string touch() const { return ns + "/touch"; }
 
