@@ -22,6 +22,7 @@ COMMON_PKGS=(
   libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev sqlite3 zlib1g-dev libyaml-cpp-dev nlohmann-json3-dev
   libgtest-dev googletest
   python3-numpy python3-matplotlib python3-yaml
+  libturbojpeg0-dev  # JPEG headers checked before decoding (ecar_core/io/jpeg.h)
   xvfb imagemagick clang-format
   iproute2 procps  # ip netns, tc, sysctl: the shared link (ecar_sim.links, run_session --link)
 )

@@ -2,10 +2,11 @@
 
 #include <algorithm>
 
-#include <opencv2/imgcodecs.hpp>
+#include <cctype>
 
 #include "ecar_bridge/geometry.h"
 #include "ecar_core/common/error.h"
+#include "ecar_core/io/jpeg.h"
 
 namespace ecar_bridge {
 namespace {
@@ -51,22 +52,46 @@ UploadContent fromMsg(const ecar_msgs::Upload& msg) {
   return c;
 }
 
-cv::Mat decodeImage(const ecar_msgs::Upload& upload) {
-  const auto& data = upload.image.data;
-  if (data.empty()) throw ecar::Error("image is empty");
-  cv::Mat image;
+bool isJpegFormat(const std::string& format) {
+  std::string lower(format);
+  std::transform(lower.begin(), lower.end(), lower.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return lower == "jpg" || lower.find("jpeg") != std::string::npos;
+}
+
+ecar::JpegHeader readImageHeader(const ecar_msgs::Upload& upload) {
+  if (!isJpegFormat(upload.image.format)) {
+    throw ecar::Error("image format '" + upload.image.format.substr(0, 64) +
+                      "': uploads are JPEG only");
+  }
   try {
-    image = cv::imdecode(
-        cv::Mat(1, static_cast<int>(data.size()), CV_8U, const_cast<uint8_t*>(data.data())),
-        cv::IMREAD_GRAYSCALE);
-  } catch (const cv::Exception&) {
-    image.release();
+    return ecar::readJpegHeader(upload.image.data.data(), upload.image.data.size());
+  } catch (const ecar::Error& e) {
+    throw ecar::Error(std::string("image: ") + e.what());
   }
-  if (image.empty()) {
-    throw ecar::Error("image does not decode (" + std::to_string(data.size()) + " bytes, format '" +
-                      upload.image.format + "')");
+}
+
+void checkImageFits(const ecar_msgs::Upload& upload, const ecar::JpegHeader& header, int width,
+                    int height) {
+  try {
+    ecar::checkJpegFits(header, upload.image.data.size(), width, height);
+  } catch (const ecar::Error& e) {
+    throw ecar::Error(std::string("image: ") + e.what());
   }
-  return image;
+}
+
+void decodeImage(const ecar_msgs::Upload& upload, const ecar::JpegHeader& header, cv::Mat* out) {
+  try {
+    ecar::decodeJpegGray(upload.image.data.data(), upload.image.data.size(), out, &header);
+  } catch (const ecar::Error& e) {
+    throw ecar::Error(std::string("image: ") + e.what());
+  }
+}
+
+void decodeImage(const ecar_msgs::Upload& upload, int width, int height, cv::Mat* out) {
+  const ecar::JpegHeader header = readImageHeader(upload);
+  checkImageFits(upload, header, width, height);
+  decodeImage(upload, header, out);
 }
 
 ecar_msgs::DeviceFrame toMsg(const std::string& device_id, const ros::Time& stamp,

@@ -93,16 +93,40 @@ TEST(UploadTest, ImageDecodesOrNamesTheField) {
   ecar_msgs::Upload upload;
   upload.image.format = "jpeg";
   cv::imencode(".jpg", grey, upload.image.data, {cv::IMWRITE_JPEG_QUALITY, 90});
-  const cv::Mat decoded = decodeImage(upload);
+  cv::Mat decoded;
+  decodeImage(upload, 64, 48, &decoded);
   EXPECT_EQ(decoded.cols, 64);
   EXPECT_EQ(decoded.rows, 48);
   EXPECT_EQ(decoded.type(), CV_8U);
-  upload.image.data.resize(40);  // truncated
-  EXPECT_THROW(decodeImage(upload), ecar::Error);
+  const auto error = [&](int width, int height) {
+    try {
+      decodeImage(upload, width, height, &decoded);
+    } catch (const ecar::Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  // Another camera size: refused from the header, before decoding.
+  EXPECT_NE(error(640, 480).find("image: JPEG of 64x48, not the camera's 640x480"),
+            std::string::npos)
+      << error(640, 480);
+  // compressed_image_transport's format string is JPEG too; PNG is not decoded at all.
+  upload.image.format = "mono8; jpeg compressed mono8";
+  EXPECT_EQ(error(64, 48), "");
+  upload.image.format = "png";
+  EXPECT_NE(error(64, 48).find("image format 'png': uploads are JPEG only"), std::string::npos);
+  upload.image.format = "jpeg";
+  const std::vector<uint8_t> good = upload.image.data;
+  upload.image.data.resize(good.size() / 2);  // truncated
+  EXPECT_NE(error(64, 48).find("does not decode"), std::string::npos) << error(64, 48);
   upload.image.data.assign(500, 0xAB);
-  EXPECT_THROW(decodeImage(upload), ecar::Error);
+  EXPECT_NE(error(64, 48).find("not a JPEG"), std::string::npos);
   upload.image.data.clear();
-  EXPECT_THROW(decodeImage(upload), ecar::Error);
+  EXPECT_NE(error(64, 48).find("no bytes"), std::string::npos);
+  EXPECT_TRUE(isJpegFormat("JPEG"));
+  EXPECT_TRUE(isJpegFormat("jpg"));
+  EXPECT_FALSE(isJpegFormat("png"));
+  EXPECT_FALSE(isJpegFormat(""));
 }
 
 TEST(DeviceFrameTest, Fields) {

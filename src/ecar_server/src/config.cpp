@@ -55,6 +55,8 @@ void ServerConfig::validate() const {
   if (!(autosave_period >= 1.0 && autosave_period <= 86400.0)) {
     fail("autosave_period", "must be in [1, 86400] s");
   }
+  if (map_dir.empty()) fail("map_dir", "must be a folder");
+  if (!(max_map_mb >= 1.0 && max_map_mb <= 65536.0)) fail("max_map_mb", "must be in [1, 65536] MB");
   if (autosave_file.empty()) fail("autosave_file", "must be 'auto', 'none' or a path");
   if (loop_min_inliers < 10 || loop_min_inliers > 10000) {
     fail("loop_min_inliers", "must be in [10, 10000]");

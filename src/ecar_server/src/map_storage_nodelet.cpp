@@ -7,8 +7,15 @@
 // problem, and the server goes on with the map it had. Devices notice a load
 // by the map epoch of their next local graph. The map is also saved every
 // autosave_period seconds and when the server shuts down (autosave_file).
-#include <cstdlib>
+//
+// The services' callers name a file in one folder only (map_dir): a file name
+// ending in .ecarmap, or an absolute path in that folder. Nothing else is
+// written or read for them: not the VO database, not a file reached through a
+// link (never followed), not a FIFO (refused without waiting), not a file over
+// max_map_mb. map_file and autosave_file come from the operator's
+// configuration and may lie anywhere.
 #include <memory>
+#include <optional>
 #include <string>
 
 #include <ecar_msgs/LoadMap.h>
@@ -19,6 +26,7 @@
 
 #include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
+#include "ecar_core/io/safe_file.h"
 #include "ecar_server/ros_params.h"
 
 namespace ecar_server {
@@ -41,11 +49,19 @@ class MapStorageNodelet : public nodelet::Nodelet {
     ros::NodeHandle& nh = getMTNodeHandle();
     const ServerConfig config = loadServerConfig(nh);
     graph_ = sharedGraph(nh.getNamespace(), config);
+    max_bytes_ = static_cast<size_t>(config.max_map_mb * 1024.0 * 1024.0);
+    try {
+      folder_.emplace(config.map_dir);
+      NODELET_INFO("map_dir: save_map and load_map work in '%s'", folder_->path().c_str());
+    } catch (const ecar::Error& e) {
+      folder_error_ = std::string("map_dir: ") + e.what();
+      NODELET_ERROR("%s; save_map and load_map will fail", folder_error_.c_str());
+    }
     const std::string& map_file = config.map_file;
     if (!map_file.empty()) {
       std::string message;
       ecar::MapCounts counts;
-      if (load(expandHome(map_file), &counts, &message)) {
+      if (load(map_file, &counts, &message)) {
         NODELET_INFO("map_file: %s", message.c_str());
       } else {
         NODELET_ERROR("map_file: %s; starting with an empty map", message.c_str());
@@ -79,10 +95,15 @@ class MapStorageNodelet : public nodelet::Nodelet {
     }
   }
 
+  // The file a service caller's path stands for (ecar::MapFolder::resolve).
+  std::string inFolder(const std::string& requested) const {
+    if (!folder_) throw ecar::Error(folder_error_);
+    return folder_->resolve(requested);
+  }
+
   bool onSave(ecar_msgs::SaveMap::Request& req, ecar_msgs::SaveMap::Response& res) {
-    const std::string path = expandHome(req.path);
     try {
-      if (path.empty()) throw ecar::Error("save_map: the path is empty");
+      const std::string path = inFolder(req.path);
       const ecar::MapCounts c = graph_->save(path);
       res.success = true;
       res.keyframes = c.keyframes;
@@ -101,7 +122,12 @@ class MapStorageNodelet : public nodelet::Nodelet {
 
   bool onLoad(ecar_msgs::LoadMap::Request& req, ecar_msgs::LoadMap::Response& res) {
     ecar::MapCounts c;
-    res.success = load(expandHome(req.path), &c, &res.message);
+    try {
+      res.success = load(inFolder(req.path), &c, &res.message);
+    } catch (const ecar::Error& e) {
+      res.success = false;
+      res.message = e.what();
+    }
     if (res.success) {
       res.keyframes = c.keyframes;
       res.map_points = c.map_points;
@@ -118,7 +144,7 @@ class MapStorageNodelet : public nodelet::Nodelet {
   bool load(const std::string& path, ecar::MapCounts* counts, std::string* message) {
     try {
       if (path.empty()) throw ecar::Error("load_map: the path is empty");
-      *counts = graph_->load(path);
+      *counts = graph_->load(path, max_bytes_);
       *message = "loaded " + describe(*counts) + " from '" + path + "', map epoch " +
                  std::to_string(graph_->epoch());
       if (!counts->orphan_objects.empty()) {
@@ -149,18 +175,14 @@ class MapStorageNodelet : public nodelet::Nodelet {
     return text;
   }
 
-  // "~/x" -> "$HOME/x".
-  static std::string expandHome(const std::string& path) {
-    const char* home = std::getenv("HOME");
-    if (path.size() >= 2 && path[0] == '~' && path[1] == '/' && home) return home + path.substr(1);
-    return path;
-  }
-
   std::shared_ptr<ecar::GlobalGraph> graph_;
   ros::ServiceServer save_srv_, load_srv_;
   ros::WallTimer autosave_timer_;
   std::string autosave_path_;
   bool autosaved_ = false;
+  std::optional<ecar::MapFolder> folder_;  ///< map_dir (empty: it could not be made)
+  std::string folder_error_;               ///< why not
+  size_t max_bytes_ = ecar::kMaxMapFileBytes;
 };
 
 }  // namespace ecar_server

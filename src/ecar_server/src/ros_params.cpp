@@ -63,6 +63,9 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("merge_ba_in_background", &c.merge_ba_in_background);
   r.read("map_file", &c.map_file);
   c.map_file = expandHome(c.map_file);
+  r.read("map_dir", &c.map_dir);
+  c.map_dir = expandHome(c.map_dir);
+  r.read("max_map_mb", &c.max_map_mb);
   r.read("autosave_file", &c.autosave_file);
   if (c.autosave_file != "auto" && c.autosave_file != "none") {
     c.autosave_file = expandHome(c.autosave_file);

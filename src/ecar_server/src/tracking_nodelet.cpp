@@ -121,22 +121,31 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
              const ecar_bridge::UploadContent& content, const ros::Time& received) {
     const std::optional<ecar::DeviceInfo> info = graph_->devices().device(device);
     if (!info) return;  // disconnected meanwhile
-    cv::Mat image;
+    const ecar::CameraPtr camera = graph_->camera(device);
+    if (!camera) return;
+    // Three steps with a warning each (a throttled warning hides the others of its line):
+    // nothing is decoded before the format, the header and the size are checked.
+    ecar::JpegHeader header;
     try {
-      image = ecar_bridge::decodeImage(*msg);
+      header = ecar_bridge::readImageHeader(*msg);
     } catch (const ecar::Error& e) {
       NODELET_WARN_THROTTLE(2.0, "device %s: upload frame %u: %s: dropped", device.c_str(),
                             msg->frame_index, e.what());
       return;
     }
-    const ecar::CameraPtr camera = graph_->camera(device);
-    if (!camera) return;
-    if (image.cols != camera->width() || image.rows != camera->height()) {
-      NODELET_WARN_THROTTLE(2.0,
-                            "device %s: upload frame %u: image is %dx%d, not the connected "
-                            "camera's %dx%d: dropped",
-                            device.c_str(), msg->frame_index, image.cols, image.rows,
-                            camera->width(), camera->height());
+    try {
+      ecar_bridge::checkImageFits(*msg, header, camera->width(), camera->height());
+    } catch (const ecar::Error& e) {
+      NODELET_WARN_THROTTLE(2.0, "device %s: upload frame %u: %s: dropped", device.c_str(),
+                            msg->frame_index, e.what());
+      return;
+    }
+    cv::Mat image;
+    try {
+      ecar_bridge::decodeImage(*msg, header, &image);
+    } catch (const ecar::Error& e) {
+      NODELET_WARN_THROTTLE(2.0, "device %s: upload frame %u: %s: dropped", device.c_str(),
+                            msg->frame_index, e.what());
       return;
     }
     const ros::Time t_start = ros::Time::now();

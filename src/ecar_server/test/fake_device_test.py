@@ -328,12 +328,13 @@ class Server:
     """server.launch run by the test (so that it can kill -9 it)."""
 
     def __init__(self, database, vo_attach="grid", map_file="", vo_share="graph",
-                 autosave_period=""):
+                 autosave_period="", map_dir=""):
         root = os.path.join(rospkg.RosPack().get_path("ecar_server"), "..", "..")
         self.proc = subprocess.Popen(
             ["roslaunch", os.path.join(root, "launch", "server.launch"), "output:=log",
              "database:=" + database, "vo_attach:=" + vo_attach, "map:=" + map_file,
-             "vo_share:=" + vo_share, "autosave_period:=" + autosave_period],
+             "vo_share:=" + vo_share, "autosave_period:=" + autosave_period,
+             "map_dir:=" + (map_dir or os.path.dirname(os.path.abspath(database)))],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
     def manager_pid(self):
@@ -806,11 +807,18 @@ class ServerTest(unittest.TestCase):
 
         rospy.wait_for_service("/ecar/save_map", timeout=10.0)
         save = rospy.ServiceProxy("/ecar/save_map", SaveMap)
-        bad_path = os.path.join(folder, "no_such_dir", "x.ecarmap")
-        r = save(bad_path)
-        self.assertFalse(r.success)
-        self.assertIn(bad_path, r.message)
-        print("[map] save to an unwritable path: %s" % r.message)
+        # Paths outside the map folder (map_dir: the test's folder), or naming other files in it
+        # (the VO database), are refused with the reason; nothing is written.
+        for bad_path, why in [(os.path.join(folder, "no_such_dir", "x.ecarmap"), "outside"),
+                              ("../escape.ecarmap", "subfolder or '..'"),
+                              ("/tmp/elsewhere.ecarmap", "outside"),
+                              ("first.sqlite", "must end in .ecarmap")]:
+            r = save(bad_path)
+            self.assertFalse(r.success, bad_path)
+            self.assertIn(bad_path, r.message)
+            self.assertIn(why, r.message)
+            print("[map] save to %s: %s" % (bad_path, r.message))
+        self.assertFalse(os.path.exists(os.path.join(os.path.dirname(folder), "escape.ecarmap")))
         start = time.time()
         r = save(map_file)
         print("[map] save_map: %s (call %.0f ms)" % (r.message, 1000 * (time.time() - start)))
@@ -870,7 +878,14 @@ class ServerTest(unittest.TestCase):
         data[len(data) // 2] ^= 0x5A
         with open(corrupt, "wb") as f:
             f.write(bytes(data))
-        for path, word in [(corrupt, "CRC"), (os.path.join(folder, "missing.ecarmap"), "")]:
+        # A FIFO is refused at once (opening it for reading had blocked a manager thread forever),
+        # and a link is not followed (it could lead anywhere).
+        fifo = os.path.join(folder, "fifo.ecarmap")
+        os.mkfifo(fifo)
+        link = os.path.join(folder, "link.ecarmap")
+        os.symlink(map_file, link)
+        for path, word in [(corrupt, "CRC"), (os.path.join(folder, "missing.ecarmap"), ""),
+                           (fifo, "FIFO"), (link, "symbolic link")]:
             r = load(path)
             print("[map] load_map %s: success %s, %s" % (os.path.basename(path), r.success,
                                                           r.message))

@@ -20,6 +20,7 @@
 
 #include "ecar_core/common/geometry.h"
 #include "ecar_core/device/device_tracker.h"
+#include "ecar_core/io/jpeg.h"
 #include "ecar_core/structure/virtual_object.h"
 
 namespace ecar_bridge {
@@ -53,9 +54,24 @@ ecar_msgs::Upload toMsg(const UploadContent& content);
 /// ("gravity", "odometry") on a non-finite gravity or a bad odometry that is
 /// flagged present.
 UploadContent fromMsg(const ecar_msgs::Upload& msg);
-/// The uploaded JPEG decoded to grey; throws ecar::Error ("image") when it
-/// does not decode.
-cv::Mat decodeImage(const ecar_msgs::Upload& upload);
+/// Whether an image format string names JPEG ("jpeg", "jpg", or
+/// compressed_image_transport's "mono8; jpeg compressed mono8").
+bool isJpegFormat(const std::string& format);
+/// The uploaded JPEG decoded to grey into `out` (its buffer reused), after
+/// checking, before any decoding, that the format names JPEG, that the bytes
+/// start a JPEG whose header gives the camera's `width` x `height`, and that
+/// they are not more than such an image takes (ecar/io/jpeg.h): no other
+/// decoder is reached and no decompression bomb allocates. Throws ecar::Error
+/// starting with "image" and naming what was wrong.
+void decodeImage(const ecar_msgs::Upload& upload, int width, int height, cv::Mat* out);
+/// decodeImage's three steps, for callers that report them apart: the format
+/// and the JPEG header (nothing decoded) ...
+ecar::JpegHeader readImageHeader(const ecar_msgs::Upload& upload);
+/// ... the header's size against the camera's, and the byte count ...
+void checkImageFits(const ecar_msgs::Upload& upload, const ecar::JpegHeader& header, int width,
+                    int height);
+/// ... and the decoding. Each throws ecar::Error starting with "image".
+void decodeImage(const ecar_msgs::Upload& upload, const ecar::JpegHeader& header, cv::Mat* out);
 
 /// One DeviceFrame for a tracked camera frame (stamp = capture time, frame
 /// `map_frame`), listing the live VOs held with their versions.

@@ -9,6 +9,7 @@
 #include <filesystem>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/io/safe_file.h"
 
 namespace ecar {
 namespace {
@@ -35,9 +36,12 @@ void writeFileAtomically(const std::string& path, const std::vector<uint8_t>& by
                          const std::string& what) {
   // A name of its own per write: two writers of one path never share it.
   static std::atomic<uint32_t> writes{0};
+  checkReplaceable(path, what);
   const std::string tmp =
       path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(writes++);
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  // Exclusively: a file or link planted under the temporary name is an error, never written
+  // through.
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
   if (fd < 0) {
     throw Error(what + ": cannot create its temporary file " + quoted(tmp) + ": " + errnoText());
   }

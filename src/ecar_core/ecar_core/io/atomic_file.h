@@ -7,8 +7,11 @@
 
 namespace ecar {
 
-/// Writes `bytes` to a temporary file beside `path` (`path`.tmp.<pid>.<n>),
-/// flushes it to disk, renames it over `path` and flushes the directory.
+/// Writes `bytes` to a temporary file beside `path` (`path`.tmp.<pid>.<n>,
+/// created exclusively: a planted file or link there is an error), flushes it
+/// to disk, renames it over `path` and flushes the directory. `path` must be
+/// absent or a regular file (a symbolic link or a folder there is refused,
+/// not replaced).
 /// Throws ecar::Error starting with `what` (e.g. "map file 'x'"), naming the
 /// step and the system error; the temporary file is removed.
 void writeFileAtomically(const std::string& path, const std::vector<uint8_t>& bytes,

@@ -6,19 +6,17 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <set>
 
 #include "ecar_core/common/error.h"
 #include "ecar_core/io/atomic_file.h"
+#include "ecar_core/io/safe_file.h"
 
 namespace ecar {
 namespace {
 
 constexpr std::array<uint8_t, 8> kMagic = {'E', 'C', 'A', 'R', 'M', 'A', 'P', 0};
 constexpr uint32_t kMaxSections = 4096;
-
-std::string errnoText() { return std::strerror(errno); }
 
 std::string quoted(const std::string& s) { return "'" + s + "'"; }
 
@@ -75,17 +73,8 @@ void MapFileWriter::write(const std::string& path) const {
 
 // ---------------------------------------------------------------- MapFileReader
 
-MapFileReader MapFileReader::open(const std::string& path) {
-  std::ifstream in(path, std::ios::binary | std::ios::ate);
-  if (!in) throw Error("map file " + quoted(path) + ": cannot open: " + errnoText());
-  const std::streamoff size = in.tellg();
-  if (size < 0) throw Error("map file " + quoted(path) + ": cannot determine its size");
-  std::vector<uint8_t> bytes(static_cast<size_t>(size));
-  in.seekg(0);
-  if (size > 0 && !in.read(reinterpret_cast<char*>(bytes.data()), size)) {
-    throw Error("map file " + quoted(path) + ": read error");
-  }
-  return parse(std::move(bytes), path);
+MapFileReader MapFileReader::open(const std::string& path, size_t max_bytes) {
+  return parse(readRegularFile(path, max_bytes, "map file"), path);
 }
 
 MapFileReader MapFileReader::parse(std::vector<uint8_t> bytes, const std::string& name) {

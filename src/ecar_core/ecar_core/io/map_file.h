@@ -54,6 +54,9 @@ constexpr const char* kGridSection = "grid";
 /// Section of the virtual objects (VoStore: objects, tombstones, attachments, id counter).
 constexpr const char* kVosSection = "vos";
 
+/// Largest map file read by default (bytes).
+constexpr size_t kMaxMapFileBytes = size_t{4} << 30;
+
 /// Assembles a map file from named sections and writes it atomically.
 class MapFileWriter {
  public:
@@ -77,8 +80,10 @@ class MapFileReader {
  public:
   /// Reads `path` and checks magic, version, header CRC and the section
   /// table. Throws ecar::Error naming the file and the problem (missing,
-  /// foreign, other version, truncated, corrupted header).
-  static MapFileReader open(const std::string& path);
+  /// foreign, other version, truncated, corrupted header), and refuses
+  /// without reading what is not a regular file (a symbolic link, a FIFO: never
+  /// waited on) or is larger than `max_bytes`.
+  static MapFileReader open(const std::string& path, size_t max_bytes = kMaxMapFileBytes);
   /// The same for bytes in memory; `name` stands for the file in errors.
   static MapFileReader parse(std::vector<uint8_t> bytes, const std::string& name);
 

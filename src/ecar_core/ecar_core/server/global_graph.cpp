@@ -511,9 +511,9 @@ MapCounts GlobalGraph::save(const std::string& path) {
   return counts;
 }
 
-MapCounts GlobalGraph::load(const std::string& path) {
+MapCounts GlobalGraph::load(const std::string& path, size_t max_bytes) {
   const auto start = std::chrono::steady_clock::now();
-  const MapFileReader file = MapFileReader::open(path);
+  const MapFileReader file = MapFileReader::open(path, max_bytes);
   // Decode everything before anything changes.
   std::shared_ptr<Atlas> atlas = this->atlas();
   const std::vector<std::pair<MapId, std::string>> sections = atlasSections(file);

@@ -44,6 +44,7 @@
 #include <vector>
 
 #include "ecar_core/common/camera.h"
+#include "ecar_core/io/map_file.h"
 #include "ecar_core/server/device_registry.h"
 #include "ecar_core/slam/atlas.h"
 #include "ecar_core/slam/map_correction.h"
@@ -248,8 +249,9 @@ class GlobalGraph {
   /// default. Keyframes keep their saved cameras; connected devices keep
   /// theirs. Objects of a map the file does not hold are kept and listed in
   /// orphan_objects. Throws ecar::Error naming the path, the section and the
-  /// field.
-  MapCounts load(const std::string& path);
+  /// field; a file that is not a regular file or is larger than `max_bytes` is
+  /// refused unread (MapFileReader::open).
+  MapCounts load(const std::string& path, size_t max_bytes = kMaxMapFileBytes);
 
   /// Adds a listener and replays the current state to it (onMapCreated for
   /// each map, onDeviceAdded for each device). It must outlive its registration.

@@ -117,7 +117,14 @@ struct ServerConfig {
   double plane_resend_extent = 0.25;
 
   /// A map file (written by /ecar/save_map) to load at startup; "" = none.
+  /// Set by the operator, so it may lie anywhere (unlike the services' paths).
   std::string map_file;
+  /// The folder /ecar/save_map and /ecar/load_map work in: their path is a
+  /// file name ending in .ecarmap there (or an absolute path in it); created
+  /// when missing (ecar::MapFolder).
+  std::string map_dir = "~/.ros/ecar_maps";
+  /// Largest map file loaded (MB), by the services and at startup.
+  double max_map_mb = 4096.0;
   /// Autosave of the whole map: "auto" = beside the VO database
   /// (<dir>/<stem>.autosave.ecarmap; none for an in-memory database), "none"
   /// = off, or a path. Written atomically every autosave_period s and when

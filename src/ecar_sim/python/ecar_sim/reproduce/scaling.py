@@ -28,7 +28,7 @@ FIELDS = ["mode", "devices", "latency_ms_median", "latency_ms_p95", "latency_sca
 
 def counts(quick):
     """The numbers of devices of the sweep."""
-    return [1, 4, 10] if quick else [1, 2, 5, 10, 15, 20]
+    return [1, 5] if quick else [1, 2, 5, 10, 15, 20]
 
 
 def settings(quick):
