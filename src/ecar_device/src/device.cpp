@@ -330,6 +330,7 @@ void Device::publishHeldUpload() {
   if (!held_upload_) return;
   ecar_msgs::Upload& msg = *held_upload_;
   msg.sent = ros::Time::now();
+  msg.session = session_;
   for (auto it = pending_.rbegin(); it != pending_.rend(); ++it) {
     if (it->frame_index != msg.frame_index) continue;
     it->sent = msg.sent;

@@ -117,6 +117,7 @@ void Device::connect() {
     srv.request.camera_info = camera_info_;
     srv.request.sync_mode = config_.sync_mode;
     srv.request.keyframe_queue = static_cast<uint32_t>(config_.tracker.keyframe_queue);
+    srv.request.session = session_;  // ours, if the server still holds our connection
   }
   if (!ros::service::exists(config_.connect_service, false)) {
     ROS_INFO_THROTTLE(10.0, "%s: waiting for %s", config_.device_id.c_str(),
@@ -134,6 +135,7 @@ void Device::connect() {
     return;
   }
   std::lock_guard<std::mutex> lock(mutex_);
+  session_ = srv.response.session;
   if (!srv.response.upload_topic.empty() && srv.response.upload_topic != upload_topic_) {
     upload_topic_ = srv.response.upload_topic;
     upload_pub_ = nh_.advertise<ecar_msgs::Upload>(upload_topic_, 4);

@@ -55,7 +55,9 @@ void Device::applyTouch(const ecar::Touch& touch, const ros::Time& stamp) {
     // The coordinates are those of the server map this device holds: a
     // request that arrives after that map merged is refused, not misplaced.
     r.object.map = ecar::MapId(map_id_);
-    interaction_pub_.publish(ecar_bridge::toMsg(r, header));
+    ecar_msgs::Interaction msg = ecar_bridge::toMsg(r, header);
+    msg.session = session_;
+    interaction_pub_.publish(msg);
   }
 }
 

@@ -40,6 +40,7 @@ from geometry_msgs.msg import Point
 from ecar_msgs.srv import Connect, ConnectResponse
 
 PKG = "ecar_device"
+FAKE_SESSION = 0x5EC0DE5EC0DE  # the fake server's session token
 REPO = os.path.abspath(os.path.join(os.path.dirname(os.path.realpath(__file__)), "..", "..", ".."))
 
 
@@ -156,7 +157,8 @@ class DeviceTest(unittest.TestCase):
             self.connects.append((rospy.get_time(), req))
         ns = "/" + req.device_id
         return ConnectResponse(accepted=True, message="fake server", map_epoch=7,
-                               upload_topic=ns + "/upload", local_graph_topic=ns + "/local_graph",
+                               session=FAKE_SESSION, upload_topic=ns + "/upload",
+                               local_graph_topic=ns + "/local_graph",
                                interaction_topic=ns + "/interaction")
 
     def on_upload(self, msg):
@@ -229,7 +231,9 @@ class DeviceTest(unittest.TestCase):
         self.assertEqual(connect_req.device_id, self.device)
         self.assertEqual(connect_req.keyframe_queue, 10)
         self.assertEqual(connect_req.camera_info.width, 640)
+        self.assertEqual(connect_req.session, 0)  # none yet
         self.assertTrue(uploads[0].reset)
+        self.assertEqual({u.session for u in uploads}, {FAKE_SESSION})
         # One upload per slot of 4 frames: the first comes with the first frame after the
         # server joined the device's topics (any frame of its slot), the rest on time.
         slots = [u.frame_index // 4 for u in uploads]
@@ -288,6 +292,9 @@ class DeviceTest(unittest.TestCase):
             self.answer = True
         self.wait_for(lambda: any(u.reset for _, u in self.uploads[silent_from:]), 10.0,
                       "an upload with reset after reconnecting")
+        with self.lock:
+            # It connects again with its token, so that a server holding it takes it back.
+            self.assertEqual(self.connects[1][1].session, FAKE_SESSION)
 
         # 7. OK graphs with the floor: a stroke becomes REGISTERed lines on it.
         with self.lock:
@@ -310,6 +317,7 @@ class DeviceTest(unittest.TestCase):
         camera_x = pose[0][0]
         for i, m in enumerate(registers):
             self.assertEqual(m.device_id, self.device)
+            self.assertEqual(m.session, FAKE_SESSION)
             self.assertEqual(m.type, Interaction.REGISTER)
             self.assertEqual(m.object_id, 0)
             self.assertEqual(m.base_version, 0)

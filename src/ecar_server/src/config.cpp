@@ -25,6 +25,7 @@ void ServerConfig::validate() const {
   }
   if (workers < 1 || workers > 64) fail("workers", "must be in [1, 64]");
   if (!(device_timeout > 0.0)) fail("device_timeout", "must be > 0 s");
+  if (max_devices < 1 || max_devices > 1024) fail("max_devices", "must be in [1, 1024]");
   if (max_upload_bytes < 1000) fail("max_upload_bytes", "must be >= 1000");
   if (upload_queue_size < 1) fail("upload_queue_size", "must be >= 1");
   if (device_queue_size < 1) fail("device_queue_size", "must be >= 1");
@@ -135,6 +136,7 @@ ecar::GlobalGraphConfig ServerConfig::graphConfig(uint32_t first_epoch) const {
   c.devices.default_mode = syncMode();
   c.devices.default_keyframe_queue = static_cast<size_t>(keyframe_queue);
   c.devices.device_timeout = device_timeout;
+  c.devices.max_devices = static_cast<size_t>(max_devices);
   return c;
 }
 

@@ -2,6 +2,8 @@
 // The registry is the global graph's (ecar::GlobalGraph::connect checks the
 // name, the sync mode and the camera, which creates the SLAM map); the other
 // nodelets subscribe and advertise per device when it reports a device added.
+// Each connection gets a session token (Connect.session); a disconnect must
+// carry it, and so must the uploads and interactions the other nodelets check.
 #include <memory>
 
 #include <ecar_msgs/Connect.h>
@@ -54,10 +56,11 @@ class DeviceRegistryNodelet : public nodelet::Nodelet {
       NODELET_WARN("device %s: %s", req.device_id.c_str(), res.message.c_str());
       return true;
     }
-    const ecar::DeviceConnectResult r =
-        graph_->connect(req.device_id, camera, req.sync_mode, req.keyframe_queue, steadySeconds());
+    const ecar::DeviceConnectResult r = graph_->connect(
+        req.device_id, camera, req.sync_mode, req.keyframe_queue, steadySeconds(), req.session);
     res.accepted = r.accepted;
     res.message = r.message;
+    if (r.accepted) res.session = r.device.session;
     res.map_epoch = graph_->epoch();
     if (r.accepted) {
       const ecar_bridge::DeviceTopics topics{req.device_id};
@@ -66,15 +69,23 @@ class DeviceRegistryNodelet : public nodelet::Nodelet {
       res.interaction_topic = topics.interaction();
       NODELET_INFO("device %s: %s", req.device_id.c_str(), r.message.c_str());
     } else {
-      NODELET_WARN("device %s: connect refused: %s", req.device_id.c_str(), r.message.c_str());
+      NODELET_WARN_THROTTLE(1.0, "device %s: connect refused: %s",
+                            req.device_id.substr(0, 80).c_str(), r.message.c_str());
     }
     return true;
   }
 
   bool onDisconnect(ecar_msgs::Disconnect::Request& req, ecar_msgs::Disconnect::Response& res) {
-    res.ok = graph_->disconnect(req.device_id);
-    res.message = res.ok ? "disconnected" : "device '" + req.device_id + "' is not connected";
-    NODELET_INFO("device %s: %s", req.device_id.c_str(), res.message.c_str());
+    const ecar::SessionCheck check = graph_->disconnect(req.device_id, req.session);
+    res.ok = check == ecar::SessionCheck::kOk;
+    const std::string name = req.device_id.substr(0, 80);
+    if (res.ok) {
+      res.message = "disconnected";
+      NODELET_INFO("device %s: disconnected", name.c_str());
+    } else {
+      res.message = "device '" + name + "': " + ecar::toString(check) + ": not disconnected";
+      NODELET_WARN_THROTTLE(1.0, "%s", res.message.c_str());
+    }
     return true;
   }
 

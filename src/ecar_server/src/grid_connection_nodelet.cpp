@@ -9,7 +9,8 @@
 //   rejected with the store's reason. rviz's Publish Point tool
 //   (/clicked_point, frame "map") registers an ANCHOR owned by "rviz", and
 //   dragging a VO's interactive marker (/ecar/vo_markers) manipulates it as
-//   "rviz" (VoMarkerServer).
+//   "rviz" (VoMarkerServer), unless vo.rviz_user is false. Each interaction
+//   must carry its device's session token (Connect.session).
 // - /ecar/tracked_frame: the planes, objects and cells visible from each
 //   aligned upload, on /ecar/visible_structure (the tracked frame inside) for
 //   GraphPublisher and the Visualizer.
@@ -113,8 +114,13 @@ class GridConnectionNodelet : public nodelet::Nodelet, public ecar::GraphListene
     visible_pub_ =
         nh.advertise<ecar_msgs::VisibleStructure>(ecar_bridge::kVisibleStructureTopic, 100);
     graph_->addListener(this);
-    clicked_sub_ = nh.subscribe(ecar_bridge::kClickedPointTopic, 10,
-                                &GridConnectionNodelet::onClickedPoint, this);
+    rviz_user_ = config.vo_rviz_user;
+    if (rviz_user_) {
+      clicked_sub_ = nh.subscribe(ecar_bridge::kClickedPointTopic, 10,
+                                  &GridConnectionNodelet::onClickedPoint, this);
+    } else {
+      NODELET_INFO("vo.rviz_user false: rviz shows the VOs but cannot register or move them");
+    }
     // One subscription each: keyframes are linked in order; tracked frames one
     // at a time (each device's in order).
     planes_sub_ = nh.subscribe(ecar_bridge::kKeyFramePlanesTopic, 200,
@@ -126,6 +132,11 @@ class GridConnectionNodelet : public nodelet::Nodelet, public ecar::GraphListene
         nh, ecar_bridge::kVoMarkersTopic, ecar_bridge::kMapFrame, config.vo_marker_drag_rate,
         [this](ecar::ObjectId id) { return graph_->vos().get(id); },
         [this](ecar::ObjectId id, uint32_t base_version, const ecar::VirtualObject& state) {
+          if (!rviz_user_) {
+            ecar::VoOutcome refused;
+            refused.reason = "rviz may not move objects (vo.rviz_user false)";
+            return refused;
+          }
           ecar::VoRequest request;
           request.device = kRvizUser;
           request.type = ecar::VoRequestType::kManipulate;
@@ -225,7 +236,11 @@ class GridConnectionNodelet : public nodelet::Nodelet, public ecar::GraphListene
     request.request_id = msg.request_id;
     ecar::VoOutcome outcome;
     if (msg.device_id != device) {
-      outcome.reason = "device_id '" + msg.device_id + "' is not this topic's device";
+      outcome.reason = "device_id '" + msg.device_id.substr(0, 80) + "' is not this topic's device";
+    } else if (const ecar::SessionCheck check = graph_->devices().check(device, msg.session);
+               check != ecar::SessionCheck::kOk) {
+      outcome.reason = std::string("session: ") + ecar::toString(check) +
+                       " (field session; another node on this device's topic?)";
     } else {
       try {
         request = ecar_bridge::fromMsg(msg);
@@ -299,6 +314,7 @@ class GridConnectionNodelet : public nodelet::Nodelet, public ecar::GraphListene
   ros::Subscriber clicked_sub_, planes_sub_, tracked_sub_;
   ros::Publisher objects_pub_, visible_pub_;
   std::unique_ptr<VoMarkerServer> markers_;
+  bool rviz_user_ = true;  ///< vo.rviz_user
   ros::WallTimer marker_timer_;
   std::atomic<uint64_t> changes_{0};  ///< accepted changes made here
   std::mutex timer_mutex_;            // guards the two below (the marker timer)

@@ -37,6 +37,7 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("sync_mode", &c.sync_mode);
   r.read("workers", &c.workers);
   r.read("device_timeout", &c.device_timeout);
+  r.read("max_devices", &c.max_devices);
   r.read("max_upload_bytes", &c.max_upload_bytes);
   r.read("upload_queue_size", &c.upload_queue_size);
   r.read("device_queue_size", &c.device_queue_size);
@@ -118,6 +119,7 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   vo.read("map_margin", &c.vo_map_margin);
   vo.read("share", &c.vo_share);
   vo.read("marker_drag_rate", &c.vo_marker_drag_rate);
+  vo.read("rviz_user", &c.vo_rviz_user);
   vo.read("min_line_length", &v.min_line_length);
   vo.read("max_line_length", &v.max_line_length);
   vo.read("max_width", &v.max_width);

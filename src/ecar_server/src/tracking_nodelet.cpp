@@ -93,8 +93,16 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
                             ecar_bridge::DeviceTopics{device}.upload().c_str());
       return;
     }
-    if (!graph_->touch(device, steadySeconds())) {
+    const ecar::SessionCheck session = graph_->touch(device, msg->session, steadySeconds());
+    if (session == ecar::SessionCheck::kNotConnected) {
       NODELET_WARN_THROTTLE(2.0, "device %s: upload from a device not connected: dropped",
+                            device.c_str());
+      return;
+    }
+    if (session == ecar::SessionCheck::kWrongSession) {
+      NODELET_WARN_THROTTLE(2.0,
+                            "device %s: upload with a wrong session token (field session; "
+                            "another node on its topic?): dropped",
                             device.c_str());
       return;
     }

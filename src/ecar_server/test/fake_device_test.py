@@ -84,7 +84,7 @@ import rostest
 import yaml
 import rosgraph
 from ecar_msgs.msg import Interaction, InteractionResult, LocalGraph, Plane, Upload, VirtualObject
-from ecar_msgs.srv import Connect, ConnectRequest, LoadMap, SaveMap
+from ecar_msgs.srv import Connect, ConnectRequest, Disconnect, LoadMap, SaveMap
 from geometry_msgs.msg import PointStamped
 from visualization_msgs.msg import InteractiveMarkerFeedback, InteractiveMarkerUpdate
 from rosgraph_msgs.msg import Log
@@ -159,14 +159,17 @@ class FakeDevice:
         self.results = {}  # request_id -> InteractionResult
         self.interaction_pub = None
         self.result_sub = None
+        self.session = 0  # Connect's token
 
     def connect(self):
         rospy.wait_for_service("/ecar/connect", timeout=30.0)
         connect = rospy.ServiceProxy("/ecar/connect", Connect)
         req = ConnectRequest(device_id=self.name, camera_info=self.dataset.camera_info(),
-                             sync_mode=self.sync_mode, keyframe_queue=self.queue_length)
+                             sync_mode=self.sync_mode, keyframe_queue=self.queue_length,
+                             session=self.session)
         res = connect(req)
         if res.accepted:
+            self.session = res.session
             self.sub = rospy.Subscriber(res.local_graph_topic, LocalGraph, self.on_graph,
                                         queue_size=50, tcp_nodelay=True)
             self.pub = rospy.Publisher(res.upload_topic, Upload, queue_size=20)
@@ -183,12 +186,14 @@ class FakeDevice:
             self.results[msg.request_id] = msg
             self.lock.notify_all()
 
-    def interact(self, request_id, type_, obj, object_id=0, base_version=0, timeout=10.0):
+    def interact(self, request_id, type_, obj, object_id=0, base_version=0, timeout=10.0,
+                 session=None):
         """Sends an Interaction and waits for its InteractionResult (None on timeout)."""
         msg = Interaction()
         msg.header.stamp = rospy.Time.now()
         msg.header.frame_id = "map"
         msg.device_id = self.name
+        msg.session = self.session if session is None else session
         msg.request_id = request_id
         msg.type = type_
         msg.object_id = object_id
@@ -236,9 +241,11 @@ class FakeDevice:
         alive = set().union(*self.queue) if self.queue else set()
         self.held = {i: v for i, v in self.held.items() if i in alive}
 
-    def upload(self, i, data=None, device_id=None, gravity=None, reset=False, publisher=None):
+    def upload(self, i, data=None, device_id=None, gravity=None, reset=False, publisher=None,
+               session=None):
         stamp_s, _ = self.dataset.frames[i]
         msg = Upload()
+        msg.session = self.session if session is None else session
         msg.header.stamp = rospy.Time.from_sec(1000.0 + float(stamp_s))
         msg.header.frame_id = self.name + "/camera"
         msg.device_id = device_id if device_id is not None else self.name
@@ -469,7 +476,27 @@ class ServerTest(unittest.TestCase):
         device = FakeDevice("device_0", self.dataset)
         res = device.connect()
         self.assertTrue(res.accepted, res.message)
+        self.assertNotEqual(res.session, 0)
         self.assertTrue(wait_subscribed(device.pub), "the server did not subscribe the upload topic")
+        # Sessions: another node cannot take the live name, disconnect it, or speak as a
+        # reserved user; the device itself reconnects with its token.
+        rogue = FakeDevice("device_0", self.dataset)
+        r = rogue.connect()
+        self.assertFalse(r.accepted)
+        self.assertIn("another session", r.message)
+        disconnect = rospy.ServiceProxy("/ecar/disconnect", Disconnect)
+        d = disconnect(device_id="device_0", session=res.session ^ 1)
+        self.assertFalse(d.ok)
+        self.assertIn("wrong session token", d.message)
+        for name in ("ecar", "rviz"):
+            r = FakeDevice(name, self.dataset).connect()
+            self.assertFalse(r.accepted, name)
+            self.assertIn("reserved", r.message)
+        connect = rospy.ServiceProxy("/ecar/connect", Connect)
+        again = connect(ConnectRequest(device_id="device_0", camera_info=self.dataset.camera_info(),
+                                       keyframe_queue=device.queue_length, session=res.session))
+        self.assertTrue(again.accepted, again.message)
+        self.assertEqual(again.session, res.session)
         ghost = rospy.Publisher("/ghost/upload", Upload, queue_size=5)
         bad = [
             ("corrupt jpeg", lambda i: device.upload(i, data=b"not a jpeg" * 300)),
@@ -480,6 +507,7 @@ class ServerTest(unittest.TestCase):
             ("unknown device id", lambda i: device.upload(i, device_id="intruder")),
             ("oversized", lambda i: device.upload(i, data=b"\xff" * (max_bytes + 1000))),
             ("never connected", lambda i: device.upload(i, device_id="ghost", publisher=ghost)),
+            ("wrong session token", lambda i: device.upload(i, session=device.session ^ 1)),
         ]
         good = list(range(0, len(self.dataset.frames), self.every))
         answered = {}
@@ -500,7 +528,8 @@ class ServerTest(unittest.TestCase):
         self.assertGreaterEqual(share, 0.9, "tracked %.0f%% of %d uploads after init"
                                 % (100 * share, n))
         for words in [("device_0", "image"), ("device_0", "320x240"), ("device_0", "gravity"),
-                      ("device_0", "device_id", "intruder"), ("device_0", "max_upload_bytes")]:
+                      ("device_0", "device_id", "intruder"), ("device_0", "max_upload_bytes"),
+                      ("device_0", "wrong session token")]:
             self.assertTrue(self.warned(*words), "no warning with %s in %s"
                             % (words, self.warnings))
         # Still alive: a new connect is answered.
@@ -642,14 +671,17 @@ class ServerTest(unittest.TestCase):
         far.start.x += 1e5
         far.end.x += 1e5
         far.position.x += 1e5
-        for request_id, type_, o, oid, base, word in [
-                (2, Interaction.REGISTER, nan, 0, 0, "finite"),
-                (3, Interaction.MANIPULATE, obj, 9999, 1, "9999"),
-                (4, Interaction.REGISTER, far, 0, 0, "map")]:
-            r = device.interact(request_id, type_, o, object_id=oid, base_version=base)
+        for request_id, type_, o, oid, base, word, session in [
+                (2, Interaction.REGISTER, nan, 0, 0, "finite", None),
+                (3, Interaction.MANIPULATE, obj, 9999, 1, "9999", None),
+                (4, Interaction.REGISTER, far, 0, 0, "map", None),
+                # Another node on the device's topic, without its token: the object stays.
+                (6, Interaction.DELETE, VirtualObject(), vo_id, 1, "session", 0)]:
+            r = device.interact(request_id, type_, o, object_id=oid, base_version=base,
+                                session=session)
             self.assertIsNotNone(r, "no InteractionResult for request %d" % request_id)
             self.assertFalse(r.accepted, "request %d accepted" % request_id)
-            self.assertTrue(r.reason, "request %d rejected without a reason" % request_id)
+            self.assertIn(word, r.reason)
             print("[vo] request %d rejected: %s" % (request_id, r.reason))
         time.sleep(0.5)
         self.assertTrue(self.warned("device_0", "rejected"), "no warning naming the device")

@@ -93,13 +93,13 @@ void GlobalGraph::onMapRemoved(MapId id) {
 
 DeviceConnectResult GlobalGraph::connect(const std::string& name, const PinholeCamera& camera,
                                          const std::string& sync_mode, uint32_t keyframe_queue,
-                                         double now) {
+                                         double now, uint64_t session) {
   DeviceConnectResult result;
   result.message = DeviceRegistry::refusal(name, sync_mode);
   if (!result.message.empty()) return result;
   const std::shared_ptr<Atlas> atlas = atlasFor(camera);
   std::lock_guard<std::mutex> events(events_mutex_);
-  result = devices_.connect(name, sync_mode, keyframe_queue, now);
+  result = devices_.connect(name, sync_mode, keyframe_queue, now, session);
   if (result.accepted) {
     // Each device tracks with its own camera; its keyframes carry it.
     atlas->setCamera(result.device.id, camera, config_.camera_tolerance);
@@ -116,13 +116,14 @@ DeviceConnectResult GlobalGraph::connect(const std::string& name, const PinholeC
   return result;
 }
 
-bool GlobalGraph::disconnect(const std::string& name) {
+SessionCheck GlobalGraph::disconnect(const std::string& name, uint64_t session) {
   std::lock_guard<std::mutex> events(events_mutex_);
-  const std::optional<DeviceInfo> removed = devices_.disconnect(name);
+  SessionCheck check = SessionCheck::kOk;
+  const std::optional<DeviceInfo> removed = devices_.disconnect(name, session, &check);
   if (removed) {
     for (GraphListener* l : listeners_) l->onDeviceRemoved(*removed);
   }
-  return removed.has_value();
+  return check;
 }
 
 std::vector<std::string> GlobalGraph::removeSilent(double now) {

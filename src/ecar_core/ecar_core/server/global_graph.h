@@ -146,14 +146,19 @@ class GlobalGraph {
   // ---- devices
   /// Registers (or re-registers) a device with its own camera (its tracker and
   /// keyframes use it). Refused: an invalid name or sync mode
-  /// (DeviceRegistry::refusal). The first device creates the atlas.
+  /// (DeviceRegistry::refusal), a live name without its `session` token, too
+  /// many devices (DeviceRegistry::connect). The first device creates the atlas.
   DeviceConnectResult connect(const std::string& name, const PinholeCamera& camera,
-                              const std::string& sync_mode, uint32_t keyframe_queue, double now);
-  bool disconnect(const std::string& name);
+                              const std::string& sync_mode, uint32_t keyframe_queue, double now,
+                              uint64_t session = 0);
+  /// Disconnects a device whose token is `session`; kOk when it did.
+  SessionCheck disconnect(const std::string& name, uint64_t session);
   /// Drops the devices silent for longer than the timeout; returns their names.
   std::vector<std::string> removeSilent(double now);
-  /// Marks a device as heard from; false when it is not connected.
-  bool touch(const std::string& name, double now) { return devices_.touch(name, now); }
+  /// Marks a device as heard from when `session` is its token.
+  SessionCheck touch(const std::string& name, uint64_t session, double now) {
+    return devices_.touch(name, session, now);
+  }
   const DeviceRegistry& devices() const { return devices_; }
 
   // ---- the SLAM maps

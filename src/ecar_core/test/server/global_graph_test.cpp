@@ -73,11 +73,11 @@ TEST(GlobalGraphTest, TheFirstDeviceCreatesTheAtlasAndEachKeepsItsOwnCamera) {
   EXPECT_EQ(slam->map().epoch(), 1000u);
   EXPECT_EQ(graph.camera("device_0")->params().fx, 525.0);
   // A reconnect with another camera takes it.
-  const auto c = graph.connect("device_1", camera(525.0, 320), "", 5, 0.0);
+  const auto c = graph.connect("device_1", camera(525.0, 320), "", 5, 0.0, b.device.session);
   ASSERT_TRUE(c.accepted) << c.message;
   EXPECT_EQ(graph.camera("device_1")->width(), 320);
   // Within camera_tolerance (0.5%) of device_0's camera: the same camera object.
-  const auto d = graph.connect("device_1", camera(525.5), "edgeslam", 5, 0.0);
+  const auto d = graph.connect("device_1", camera(525.5), "edgeslam", 5, 0.0, b.device.session);
   ASSERT_TRUE(d.accepted) << d.message;
   EXPECT_EQ(graph.camera("device_1"), graph.camera("device_0"));
   EXPECT_EQ(d.device.mode, SyncMode::kEdgeSlam);
@@ -105,8 +105,9 @@ TEST(GlobalGraphTest, ReconnectKeepsTheIdAndTakesTheNewQueue) {
   Recorder rec;
   graph.addListener(&rec);
   const auto a = graph.connect("device_0", camera(), "", 0, 0.0);
-  const auto b = graph.connect("device_0", camera(), "", 3, 1.0);
+  const auto b = graph.connect("device_0", camera(), "", 3, 1.0, a.device.session);
   EXPECT_TRUE(b.reconnected);
+  EXPECT_EQ(b.device.session, a.device.session);
   EXPECT_EQ(b.device.id, a.device.id);
   EXPECT_EQ(graph.devices().device("device_0")->keyframe_queue, 3u);
   EXPECT_EQ(rec.added.size(), 1u);  // no second "added"
@@ -120,21 +121,70 @@ TEST(GlobalGraphTest, SilentDevicesAreDroppedAndMayComeBack) {
   Recorder rec;
   graph.addListener(&rec);
   const auto a = graph.connect("device_0", camera(), "", 0, 0.0);
-  graph.connect("device_1", camera(), "", 0, 0.0);
-  EXPECT_TRUE(graph.touch("device_1", 8.0));
-  EXPECT_FALSE(graph.touch("device_7", 8.0));
+  const uint64_t s1 = graph.connect("device_1", camera(), "", 0, 0.0).device.session;
+  EXPECT_EQ(graph.touch("device_1", s1, 8.0), SessionCheck::kOk);
+  EXPECT_EQ(graph.touch("device_7", s1, 8.0), SessionCheck::kNotConnected);
   EXPECT_TRUE(graph.removeSilent(9.0).empty());
   EXPECT_EQ(graph.removeSilent(12.0), (std::vector<std::string>{"device_0"}));
   EXPECT_EQ(rec.removed, (std::vector<std::string>{"device_0"}));
   EXPECT_FALSE(graph.devices().device("device_0").has_value());
-  EXPECT_FALSE(graph.touch("device_0", 12.0));
+  EXPECT_EQ(graph.touch("device_0", a.device.session, 12.0), SessionCheck::kNotConnected);
   const auto b = graph.connect("device_0", camera(), "", 0, 13.0);
   EXPECT_TRUE(b.accepted);
   EXPECT_FALSE(b.reconnected);
   EXPECT_EQ(b.device.id, a.device.id);
-  EXPECT_TRUE(graph.disconnect("device_1"));
-  EXPECT_FALSE(graph.disconnect("device_1"));
+  EXPECT_EQ(graph.disconnect("device_1", s1), SessionCheck::kOk);
+  EXPECT_EQ(graph.disconnect("device_1", s1), SessionCheck::kNotConnected);
   EXPECT_EQ(graph.devices().devices().size(), 1u);
+  graph.removeListener(&rec);
+}
+
+TEST(GlobalGraphTest, SessionsGuardLiveDevicesNamesAndCounts) {
+  GlobalGraphConfig config = configWith(":memory:");
+  config.devices.device_timeout = 10.0;
+  config.devices.max_devices = 2;
+  GlobalGraph graph(config);
+  Recorder rec;
+  graph.addListener(&rec);
+  const auto a = graph.connect("device_0", camera(), "", 0, 0.0);
+  ASSERT_TRUE(a.accepted);
+  ASSERT_NE(a.device.session, 0u);
+  // Another node taking the live name without the token: refused, the device untouched.
+  for (const uint64_t wrong : {uint64_t{0}, a.device.session + 1}) {
+    const auto t = graph.connect("device_0", camera(), "edgeslam", 0, 5.0, wrong);
+    EXPECT_FALSE(t.accepted);
+    EXPECT_NE(t.message.find("another session"), std::string::npos) << t.message;
+  }
+  EXPECT_EQ(graph.devices().device("device_0")->mode, SyncMode::kEcar);
+  // Uploads and disconnects need the token.
+  EXPECT_EQ(graph.touch("device_0", a.device.session + 1, 6.0), SessionCheck::kWrongSession);
+  EXPECT_EQ(graph.devices().check("device_0", 0), SessionCheck::kWrongSession);
+  EXPECT_EQ(graph.disconnect("device_0", 0), SessionCheck::kWrongSession);
+  EXPECT_TRUE(graph.devices().device("device_0").has_value());
+  EXPECT_EQ(graph.touch("device_0", a.device.session, 6.0), SessionCheck::kOk);
+  // Silent for longer than device_timeout: the name may be taken, with a new token.
+  const auto b = graph.connect("device_0", camera(), "", 0, 17.0, 0);
+  ASSERT_TRUE(b.accepted) << b.message;
+  EXPECT_NE(b.device.session, a.device.session);
+  EXPECT_EQ(b.device.id, a.device.id);
+  EXPECT_EQ(graph.touch("device_0", a.device.session, 17.5), SessionCheck::kWrongSession);
+  // Tokens differ between devices.
+  const auto c = graph.connect("device_1", camera(), "", 0, 17.0);
+  ASSERT_TRUE(c.accepted);
+  EXPECT_NE(c.device.session, b.device.session);
+  // max_devices: a third is refused; a reconnect of a connected one is not.
+  const auto d = graph.connect("device_2", camera(), "", 0, 17.0);
+  EXPECT_FALSE(d.accepted);
+  EXPECT_NE(d.message.find("max_devices"), std::string::npos) << d.message;
+  EXPECT_TRUE(graph.connect("device_1", camera(), "", 0, 17.0, c.device.session).accepted);
+  // Reserved names are never devices (with room for one more).
+  EXPECT_EQ(graph.disconnect("device_1", c.device.session), SessionCheck::kOk);
+  for (const char* name : {"ecar", "rviz", "edge_server", "rosout", "tf"}) {
+    const auto r = graph.connect(name, camera(), "", 0, 18.0);
+    EXPECT_FALSE(r.accepted) << name;
+    EXPECT_NE(r.message.find("reserved"), std::string::npos) << r.message;
+  }
+  EXPECT_TRUE(graph.connect("rviz_2", camera(), "", 0, 18.0).accepted);
   graph.removeListener(&rec);
 }
 

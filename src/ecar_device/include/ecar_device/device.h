@@ -235,6 +235,7 @@ class Device {
   bool odometry_seen_ = false;
   std::optional<ecar_msgs::Upload> held_upload_;  ///< waiting for its odometry
   bool connected_ = false;
+  uint64_t session_ = 0;  ///< Connect's token, in every upload and interaction (0: none yet)
   /// A new camera_info asked the connection thread to connect now; when paced,
   /// frames wait for that attempt and for the topics to be joined both ways
   /// (linkedToServer; else the first uploads go unsent), ~pace_timeout at most.

@@ -29,6 +29,8 @@ struct ServerConfig {
   int workers = 2;
   /// A device silent for this long (s) is dropped (unsubscribed, mirror and tracker forgotten).
   double device_timeout = 10.0;
+  /// Devices connected at once; a connect beyond is refused.
+  int max_devices = 64;
   /// Uploads whose serialized length exceeds this (bytes) are dropped.
   int max_upload_bytes = 2000000;
   /// ROS subscriber queue of each /<device>/upload topic.
@@ -101,6 +103,9 @@ struct ServerConfig {
   /// vo.marker_drag_rate, Hz: MANIPULATEs sent while an rviz interactive
   /// marker is dragged (the final one is sent on mouse-up); 0 = mouse-up only.
   double vo_marker_drag_rate = 5.0;
+  /// vo.rviz_user: rviz may register (Publish Point) and move (markers) VOs as
+  /// the user "rviz"; false = the markers only show them.
+  bool vo_rviz_user = true;
   /// Besides the planes hit from the aligned pose, a local graph carries the
   /// planes linked to the frame's local keyframes.
   bool graph_keyframe_planes = true;
