@@ -91,6 +91,12 @@ void ServerConfig::validate() const {
   } catch (const ecar::Error&) {
     fail("vo.share", "must be 'graph' or 'direct' (got '" + vo_share + "')");
   }
+  if (!(vo_max_interaction_rate >= 0.0 && vo_max_interaction_rate <= 1e6)) {
+    fail("vo.max_interaction_rate", "must be in [0, 1e6] per second (0 = unlimited)");
+  }
+  if (!(vo_interaction_burst >= 1.0 && vo_interaction_burst <= 1e6)) {
+    fail("vo.interaction_burst", "must be in [1, 1e6]");
+  }
   if (!(vo_marker_drag_rate >= 0.0) || vo_marker_drag_rate > 100.0) {
     fail("vo.marker_drag_rate", "must be in [0, 100] Hz");
   }
@@ -157,6 +163,8 @@ ecar::GridConnectionConfig ServerConfig::gridConnectionConfig() const {
   ecar::GridConnectionConfig c;
   c.keyframe_planes = graph_keyframe_planes;
   c.objects = voShare() == VoShareMode::kGraph;
+  c.max_interaction_rate = vo_max_interaction_rate;
+  c.interaction_burst = vo_interaction_burst;
   return c;
 }
 

@@ -195,6 +195,10 @@ class GridConnectionNodelet : public nodelet::Nodelet, public ecar::GraphListene
     const uint64_t changes = changes_.load();
     if (changes == synced_changes_ && ++idle_ticks_ < kMarkerFullSyncTicks) return;
     idle_ticks_ = 0;
+    // Now and then, tombstones past vo.tombstone_retention go.
+    if (const size_t n = graph_->vos().compactTombstones(ecar::steadySeconds()); n > 0) {
+      NODELET_INFO("vo: %zu tombstones older than vo.tombstone_retention compacted", n);
+    }
     synced_changes_ = changes;
     markers_->sync(graph_->vos().allObjects());
   }

@@ -120,10 +120,24 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   vo.read("share", &c.vo_share);
   vo.read("marker_drag_rate", &c.vo_marker_drag_rate);
   vo.read("rviz_user", &c.vo_rviz_user);
+  if (!c.vo_rviz_user) v.privileged_editor.clear();
   vo.read("min_line_length", &v.min_line_length);
   vo.read("max_line_length", &v.max_line_length);
   vo.read("max_width", &v.max_width);
   vo.read("max_objects", &v.max_objects);
+  std::string policy = ecar::toString(v.policy);
+  vo.read("policy", &policy);
+  try {
+    v.policy = ecar::parseVoPolicy(policy);
+  } catch (const ecar::Error&) {
+    throw ecar::Error("server parameter '" + name +
+                      "vo/policy' must be 'open', 'owner_delete' or 'owner_only' (got '" + policy +
+                      "')");
+  }
+  vo.read("tombstone_retention", &v.tombstone_retention);
+  vo.read("max_tombstones", &v.max_tombstones);
+  vo.read("max_interaction_rate", &c.vo_max_interaction_rate);
+  vo.read("interaction_burst", &c.vo_interaction_burst);
   vo.read("accept_own_stale", &v.accept_own_stale);
   vo.read("max_database_mb", &v.max_database_mb);
   v.cell_size = g.cell_size;
@@ -165,10 +179,6 @@ std::shared_ptr<ecar::GlobalGraph> sharedGraph(const std::string& key, const Ser
     registry[key] = graph;
   }
   return graph;
-}
-
-double steadySeconds() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
 }  // namespace ecar_server

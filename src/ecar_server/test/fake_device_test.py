@@ -1118,10 +1118,15 @@ class ServerTest(unittest.TestCase):
                         "the late joiner did not get the live object: %s"
                         % versions("/device_2/objects", vo_id))
 
+        # vo.policy owner_delete (the default): device_1 may move device_0's line but not
+        # delete it; device_0 may, and the tombstone goes to the others.
         res = b.interact(1, Interaction.DELETE, VirtualObject(), object_id=vo_id, base_version=2)
+        self.assertTrue(res is not None and not res.accepted, "device_1 deleted device_0's VO")
+        self.assertIn("owner device_0 only", res.reason)
+        res = a.interact(7, Interaction.DELETE, VirtualObject(), object_id=vo_id, base_version=2)
         self.assertTrue(res is not None and res.accepted, res and res.reason)
         self.assertEqual(res.version, 3)
-        for topic in ("/device_0/objects", "/device_2/objects"):
+        for topic in ("/device_1/objects", "/device_2/objects"):
             self.assertTrue(wait_for(lambda: (3, True) in versions(topic, vo_id)),
                             "%s did not receive the tombstone" % topic)
         self.assertTrue(wait_for(lambda: versions("/ecar/objects", vo_id)
@@ -1129,7 +1134,7 @@ class ServerTest(unittest.TestCase):
                         "/ecar/objects: %s" % versions("/ecar/objects", vo_id))
         self.assertTrue(wait_for(lambda: name not in markers), "the marker of a tombstone stays")
         time.sleep(0.3)
-        self.assertNotIn((3, True), versions("/device_1/objects", vo_id))
+        self.assertNotIn((3, True), versions("/device_0/objects", vo_id))
         self.assertEqual(len(received["/ecar/objects"]), 3, "changes from the bogus feedback")
         print("[share] /ecar/objects: %s; device_0 got %s, device_1 got %s"
               % (versions("/ecar/objects", vo_id), versions("/device_0/objects", vo_id),

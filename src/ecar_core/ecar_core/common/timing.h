@@ -14,6 +14,11 @@ inline double msSince(std::chrono::steady_clock::time_point start) {
       .count();
 }
 
+/// Seconds on the steady clock (monotonic; an arbitrary origin).
+inline double steadySeconds() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
 /// CPU time of the calling thread, milliseconds (less inflated than wall time
 /// when other processes share the cores).
 inline double threadCpuMs() {

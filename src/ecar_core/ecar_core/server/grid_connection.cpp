@@ -11,7 +11,9 @@
 
 namespace ecar {
 GridConnection::GridConnection(GlobalGraph* graph, const GridConnectionConfig& config)
-    : graph_(graph), config_(config) {
+    : graph_(graph),
+      config_(config),
+      limiter_(config.max_interaction_rate, config.interaction_burst) {
   if (!graph_) throw Error("GridConnection: no global graph");
 }
 
@@ -71,9 +73,17 @@ size_t GridConnection::linkKeyFrame(const KeyFramePlanes& keyframe) {
 
 VoOutcome GridConnection::apply(const VoRequest& r) {
   std::lock_guard<std::mutex> serial(apply_mutex_);
+  VoOutcome outcome;
+  if (!limiter_.allow(r.device, steadySeconds())) {
+    outcome.code = VoReject::kRateLimited;
+    outcome.id = r.object_id;
+    outcome.reason = r.device + " sent more than " +
+                     std::to_string(static_cast<int>(config_.max_interaction_rate)) +
+                     " interactions a second (vo.max_interaction_rate)";
+    return outcome;
+  }
   auto structure = graph_->structureLock();
   VoStore& store = graph_->vos();
-  VoOutcome outcome;
   // The map the request's coordinates are in: the one the device held when
   // the user acted (the device's current map when not given; rviz: the
   // largest map).

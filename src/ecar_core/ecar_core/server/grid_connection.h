@@ -31,6 +31,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "ecar_core/common/rate_limiter.h"
 #include "ecar_core/common/types.h"
 #include "ecar_core/server/global_graph.h"
 #include "ecar_core/server/plane_segmentation.h"
@@ -47,6 +48,10 @@ struct GridConnectionConfig {
   /// Find the visible objects (false when VOs reach devices another way:
   /// vo_share direct).
   bool objects = true;
+  /// Interactions a second one device (or rviz) may send on average (0 =
+  /// unlimited), and at once; beyond, they are rejected (kRateLimited).
+  double max_interaction_rate = 50.0;
+  double interaction_burst = 100.0;
 };
 
 /// What is visible from one aligned upload.
@@ -89,8 +94,9 @@ class GridConnection {
 
   GlobalGraph* graph_;
   const GridConnectionConfig config_;
-  std::mutex apply_mutex_;  // serialises apply()
-  std::mutex mutex_;        // guards the members below
+  std::mutex apply_mutex_;  // serialises apply(); guards limiter_
+  RateLimiter limiter_;
+  std::mutex mutex_;  // guards the members below
   /// One caster per camera (a few cameras: a short list).
   std::vector<std::pair<CameraPtr, std::shared_ptr<const GridCaster>>> casters_;
   struct Snapshot {

@@ -52,6 +52,20 @@ const char* toString(VoAttachMode mode);
 /// Parses "grid" / "keyframe"; throws ecar::Error naming the value otherwise.
 VoAttachMode parseVoAttachMode(const std::string& text);
 
+/// Who may change whose objects (the server's vo.policy). Everyone may
+/// register; VoStoreConfig::privileged_editor and the server itself (an empty
+/// editor: map corrections) are never restricted.
+enum class VoPolicy {
+  kOpen = 0,         ///< anyone manipulates and deletes anything
+  kOwnerDelete = 1,  ///< anyone manipulates; only the owner deletes (default)
+  kOwnerOnly = 2,    ///< only the owner manipulates or deletes
+};
+
+/// "open", "owner_delete" or "owner_only".
+const char* toString(VoPolicy policy);
+/// Parses those names; throws ecar::Error naming the value otherwise.
+VoPolicy parseVoPolicy(const std::string& text);
+
 struct VoStoreConfig {
   /// SQLite database file, created when missing (":memory:" = not persistent, for tests).
   std::string database_path = "ecar_vo.sqlite";
@@ -77,8 +91,19 @@ struct VoStoreConfig {
   double max_line_length = 5.0;    ///< m; longer LINEs are rejected
   double max_width = 0.5;          ///< m; LINE width in (0, max_width], ANCHOR in [0, max_width]
   size_t max_owner_length = 64;    ///< characters of VirtualObject::owner
-  /// Objects stored (live and deleted) at most; a registration beyond is rejected.
+  /// Live objects at most; a registration beyond is rejected (kFull) until
+  /// some are deleted. Tombstones do not count (see max_tombstones).
   size_t max_objects = 100000;
+  VoPolicy policy = VoPolicy::kOwnerDelete;
+  /// The operator's user, exempt from the policy ("" = none).
+  std::string privileged_editor = "rviz";
+  /// s: a tombstone is kept at least this long, so that devices holding the
+  /// object are told (and after that they are told by the graphs' composer,
+  /// which sends a tombstone for a held object the store no longer knows);
+  /// compactTombstones() removes older ones.
+  double tombstone_retention = 3600.0;
+  /// Tombstones kept at most; beyond, the oldest are removed at once.
+  size_t max_tombstones = 10000;
   /// While one editor keeps changing an object (a drag sends a MANIPULATE per
   /// frame before the previous one is acknowledged), accept its base_version
   /// when every change since that version was its own. Otherwise a stale
@@ -106,6 +131,8 @@ enum class VoReject {
   kFull,          ///< max_objects reached
   kStorage,       ///< the database write failed
   kStaleMap,      ///< made in a map that merged into another since (other coordinates)
+  kNotOwner,      ///< the policy reserves this change to the object's owner
+  kRateLimited,   ///< the device sent more interactions than its rate allows
 };
 
 /// The answer to one change (ecar_msgs/InteractionResult).

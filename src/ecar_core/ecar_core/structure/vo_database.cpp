@@ -94,6 +94,20 @@ class VoDatabase::Connection {
     });
   }
 
+  /// Deletes the rows of `ids` in one transaction. Returns false with `error`
+  /// set when it fails (the transaction is rolled back).
+  bool eraseAll(const std::vector<ObjectId>& ids, std::string* error) {
+    return transaction(error, [&](std::string*) {
+      bool ok = true;
+      for (size_t i = 0; ok && i < ids.size(); ++i) {
+        ok = sqlite3_reset(erase_) == SQLITE_OK &&
+             sqlite3_bind_int64(erase_, 1, static_cast<sqlite3_int64>(ids[i].value)) == SQLITE_OK &&
+             step(erase_);
+      }
+      return ok;
+    });
+  }
+
   /// Replaces every row and the id counter in one transaction. Returns false
   /// with `error` set when it fails (the transaction is rolled back).
   bool replaceAll(const std::vector<const VoRecord*>& entries, uint32_t next_id,
@@ -221,6 +235,7 @@ class VoDatabase::Connection {
         "editor_since, map_id) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, "
         "?14, ?15, ?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26)");
     set_meta_ = prepare("INSERT OR REPLACE INTO meta (key, value) VALUES (?1, ?2)");
+    erase_ = prepare("DELETE FROM objects WHERE id = ?1");
   }
 
   void createSchema() {
@@ -413,13 +428,15 @@ class VoDatabase::Connection {
   void finalizeAll() {
     sqlite3_finalize(upsert_);
     sqlite3_finalize(set_meta_);
-    upsert_ = set_meta_ = nullptr;
+    sqlite3_finalize(erase_);
+    upsert_ = set_meta_ = erase_ = nullptr;
   }
 
   std::string path_;
   sqlite3* db_ = nullptr;
   sqlite3_stmt* upsert_ = nullptr;
   sqlite3_stmt* set_meta_ = nullptr;
+  sqlite3_stmt* erase_ = nullptr;
 };
 
 VoDatabase::VoDatabase(const VoStoreConfig& config)
@@ -438,6 +455,10 @@ bool VoDatabase::write(const VoRecord& record, std::optional<uint32_t> next_id,
 
 bool VoDatabase::writeAll(const std::vector<const VoRecord*>& records, std::string* error) {
   return connection_->writeAll(records, error);
+}
+
+bool VoDatabase::eraseAll(const std::vector<ObjectId>& ids, std::string* error) {
+  return connection_->eraseAll(ids, error);
 }
 
 bool VoDatabase::replaceAll(const std::vector<const VoRecord*>& records, uint32_t next_id,

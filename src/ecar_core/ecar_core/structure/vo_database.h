@@ -42,6 +42,9 @@ class VoDatabase {
   bool write(const VoRecord& record, std::optional<uint32_t> next_id, std::string* error);
   /// Writes records in one transaction; false with `error` set when it fails.
   bool writeAll(const std::vector<const VoRecord*>& records, std::string* error);
+  /// Deletes the rows of `ids` (compacted tombstones) in one transaction;
+  /// false with `error` set when it fails.
+  bool eraseAll(const std::vector<ObjectId>& ids, std::string* error);
   /// Replaces every row and the id counter in one transaction; false with
   /// `error` set when it fails.
   bool replaceAll(const std::vector<const VoRecord*>& records, uint32_t next_id,

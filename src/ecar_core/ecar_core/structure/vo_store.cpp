@@ -7,6 +7,7 @@
 #include <utility>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/structure/vo_database.h"
 
 namespace ecar {
@@ -37,6 +38,25 @@ VoAttachMode parseVoAttachMode(const std::string& text) {
   if (text == "grid") return VoAttachMode::kGrid;
   if (text == "keyframe") return VoAttachMode::kKeyFrame;
   throw Error("vo_attach: '" + text + "' is neither 'grid' nor 'keyframe'");
+}
+
+const char* toString(VoPolicy policy) {
+  switch (policy) {
+    case VoPolicy::kOpen:
+      return "open";
+    case VoPolicy::kOwnerDelete:
+      return "owner_delete";
+    case VoPolicy::kOwnerOnly:
+      return "owner_only";
+  }
+  return "?";
+}
+
+VoPolicy parseVoPolicy(const std::string& text) {
+  for (const VoPolicy p : {VoPolicy::kOpen, VoPolicy::kOwnerDelete, VoPolicy::kOwnerOnly}) {
+    if (text == toString(p)) return p;
+  }
+  throw Error("vo.policy: '" + text + "' is none of 'open', 'owner_delete', 'owner_only'");
 }
 
 void VoStoreConfig::validate() const {
@@ -70,6 +90,14 @@ void VoStoreConfig::validate() const {
   if (max_objects < 1 || max_objects >= std::numeric_limits<uint32_t>::max()) {
     fail("max_objects", "must be in [1, 2^32 - 1)");
   }
+  if (policy != VoPolicy::kOpen && policy != VoPolicy::kOwnerDelete &&
+      policy != VoPolicy::kOwnerOnly) {
+    fail("policy", "must be open, owner_delete or owner_only");
+  }
+  if (!std::isfinite(tombstone_retention) || tombstone_retention < 0.0) {
+    fail("tombstone_retention", "must be >= 0 s");
+  }
+  if (max_tombstones < 1) fail("max_tombstones", "must be >= 1");
   if (!std::isfinite(max_database_mb) || max_database_mb < 0.0) {
     fail("max_database_mb", "must be >= 0 (0 = unlimited)");
   }
@@ -81,11 +109,14 @@ VoStore::VoStore(const VoStoreConfig& config)
     : config_((config.validate(), config)), map_min_(config.map_min), map_max_(config.map_max) {
   db_ = std::make_unique<VoDatabase>(config_);
   uint32_t max_id = 0;
+  const double now = steadySeconds();
   const uint32_t stored_next = db_->load([&](VoRecord entry) {
     max_id = std::max(max_id, entry.vo.id.value);
     if (!entry.vo.deleted) {
       attach(entry);
       ++num_live_;
+    } else {
+      deleted_at_[entry.vo.id] = now;  // when it was deleted is not stored: its retention restarts
     }
     const ObjectId id = entry.vo.id;
     objects_.emplace(id, std::move(entry));
@@ -165,7 +196,7 @@ VoReject VoStore::check(VirtualObject* vo, std::string* reason) const {
   return VoReject::kNone;
 }
 
-VoReject VoStore::checkExisting(ObjectId id, uint32_t base_version, bool unconditional_ok,
+VoReject VoStore::checkExisting(ObjectId id, uint32_t base_version, bool deleting,
                                 const std::string& editor, std::string* reason,
                                 const VoRecord** entry) const {
   const auto it = objects_.find(id);
@@ -180,9 +211,23 @@ VoReject VoStore::checkExisting(ObjectId id, uint32_t base_version, bool uncondi
               std::to_string(vo.version) + ")";
     return VoReject::kDeleted;
   }
-  if ((base_version == 0 && unconditional_ok) || base_version == vo.version) {
-    return VoReject::kNone;
+  const bool restricted = !editor.empty() && editor != config_.privileged_editor &&
+                          editor != vo.owner &&
+                          (config_.policy == VoPolicy::kOwnerOnly ||
+                           (deleting && config_.policy == VoPolicy::kOwnerDelete));
+  if (restricted) {
+    *reason = std::string(deleting ? "deleting" : "changing") + " object " +
+              std::to_string(id.value) + " is for its owner " + vo.owner + " only (vo.policy " +
+              toString(config_.policy) + ")";
+    return VoReject::kNotOwner;
   }
+  if (base_version == 0) {
+    *reason = std::string("a ") + (deleting ? "delete" : "change") +
+              " must name the version it applies to (base_version 0; object " +
+              std::to_string(id.value) + " is at version " + std::to_string(vo.version) + ")";
+    return VoReject::kStaleVersion;
+  }
+  if (base_version == vo.version) return VoReject::kNone;
   if (base_version > vo.version) {
     *reason = "base_version " + std::to_string(base_version) +
               " is newer than the store's version " + std::to_string(vo.version) + " of object " +
@@ -243,10 +288,11 @@ VoOutcome VoStore::registerObject(const VirtualObject& request, KeyFrameId keyfr
     return reject(VoReject::kNoKeyFrame, "keyframe attachment needs the nearest keyframe",
                   ObjectId(), 0);
   }
-  if (objects_.size() >= config_.max_objects || next_id_ == std::numeric_limits<uint32_t>::max()) {
+  if (num_live_ >= config_.max_objects || next_id_ == std::numeric_limits<uint32_t>::max()) {
     return reject(VoReject::kFull,
-                  "the store is full (" + std::to_string(objects_.size()) + " objects)", ObjectId(),
-                  0);
+                  "the store is full (" + std::to_string(num_live_) +
+                      " live objects, max_objects): delete some first",
+                  ObjectId(), 0);
   }
   entry.vo.id = ObjectId(next_id_);
   entry.vo.version = 1;
@@ -272,7 +318,7 @@ VoOutcome VoStore::manipulate(ObjectId id, uint32_t base_version, const VirtualO
   std::lock_guard<std::mutex> write(write_mutex_);
   std::string reason;
   const VoRecord* old = nullptr;
-  VoReject code = checkExisting(id, base_version, false, editor, &reason, &old);
+  VoReject code = checkExisting(id, base_version, /*deleting=*/false, editor, &reason, &old);
   const uint32_t current = old ? old->vo.version : 0;
   if (code != VoReject::kNone) return reject(code, reason, id, current);
   VoRecord entry = *old;
@@ -290,7 +336,7 @@ VoOutcome VoStore::remove(ObjectId id, uint32_t base_version, const std::string&
   std::lock_guard<std::mutex> write(write_mutex_);
   std::string reason;
   const VoRecord* old = nullptr;
-  const VoReject code = checkExisting(id, base_version, true, editor, &reason, &old);
+  const VoReject code = checkExisting(id, base_version, /*deleting=*/true, editor, &reason, &old);
   const uint32_t current = old ? old->vo.version : 0;
   if (code != VoReject::kNone) return reject(code, reason, id, current);
   VoRecord entry = *old;
@@ -314,8 +360,48 @@ VoOutcome VoStore::commitVersion(VoRecord entry, const VoRecord& old, const std:
   detach(stored);
   stored = std::move(entry);
   if (!stored.vo.deleted) attach(stored);
-  if (was_live && stored.vo.deleted) --num_live_;
+  if (was_live && stored.vo.deleted) {
+    --num_live_;
+    deleted_at_[id] = steadySeconds();
+  }
+  state.unlock();
+  if (deleted_at_.size() > config_.max_tombstones) compactLocked(steadySeconds(), true);
   return accept(id, current + 1);
+}
+
+size_t VoStore::compactTombstones(double now) {
+  std::lock_guard<std::mutex> write(write_mutex_);
+  return compactLocked(now, false);
+}
+
+size_t VoStore::compactLocked(double now, bool over_count) {
+  // By deletion time: the retention's expired ones, then (over_count) the oldest beyond
+  // max_tombstones.
+  std::vector<std::pair<double, ObjectId>> by_age;
+  by_age.reserve(deleted_at_.size());
+  for (const auto& [id, at] : deleted_at_) by_age.emplace_back(at, id);
+  std::sort(by_age.begin(), by_age.end());
+  std::vector<ObjectId> ids;
+  for (size_t i = 0; i < by_age.size(); ++i) {
+    const bool expired = now - by_age[i].first >= config_.tombstone_retention;
+    const bool excess = over_count && by_age.size() - i > config_.max_tombstones;
+    if (!expired && !excess) break;
+    ids.push_back(by_age[i].second);
+  }
+  if (ids.empty()) return 0;
+  std::string error;
+  if (!db_->eraseAll(ids, &error)) return 0;  // kept: tried again at the next compaction
+  std::unique_lock<std::shared_mutex> state(state_mutex_);
+  for (const ObjectId id : ids) {
+    objects_.erase(id);
+    deleted_at_.erase(id);
+  }
+  return ids.size();
+}
+
+size_t VoStore::numTombstones() const {
+  std::shared_lock<std::shared_mutex> state(state_mutex_);
+  return deleted_at_.size();
 }
 
 std::vector<VirtualObject> VoStore::objectsOfKeyFrames(
@@ -453,8 +539,14 @@ void VoStore::replaceAll(const VoSnapshot& snapshot) {
   std::unique_lock<std::shared_mutex> state(state_mutex_);
   objects_ = std::move(objects);
   keyframe_index_.clear();
+  deleted_at_.clear();
+  const double now = steadySeconds();
   for (const auto& kv : objects_) {
-    if (!kv.second.vo.deleted) attach(kv.second);
+    if (!kv.second.vo.deleted) {
+      attach(kv.second);
+    } else {
+      deleted_at_[kv.first] = now;
+    }
   }
   num_live_ = live;
   next_id_ = next_id;

@@ -72,16 +72,24 @@ class VoStore {
   /// Replaces the state of object `id` by `new_state` (its id, owner, version
   /// and deleted fields are ignored) when `base_version` is the store's version
   /// (or, with accept_own_stale, an older one and every change since was by
-  /// `editor`). Version + 1; the object is re-attached to the cells it moved to;
-  /// its keyframe stays.
+  /// `editor`) and the policy lets `editor` change it (an empty editor is the
+  /// server itself). Version + 1; the object is re-attached to the cells it
+  /// moved to; its keyframe stays.
   VoOutcome manipulate(ObjectId id, uint32_t base_version, const VirtualObject& new_state,
                        const std::string& editor = std::string());
 
   /// Deletes object `id`: it becomes a tombstone at version + 1 and is detached
-  /// from its cells and keyframe. `base_version` 0 = unconditional; otherwise
-  /// checked as in manipulate().
-  VoOutcome remove(ObjectId id, uint32_t base_version = 0,
-                   const std::string& editor = std::string());
+  /// from its cells and keyframe. `base_version` is checked as in manipulate()
+  /// (0, an unconditional delete, is refused). With max_tombstones exceeded
+  /// the oldest tombstones are removed.
+  VoOutcome remove(ObjectId id, uint32_t base_version, const std::string& editor);
+
+  /// Removes the tombstones deleted at least tombstone_retention s before
+  /// `now` (ecar::steadySeconds(), common/timing.h) from memory and the
+  /// database; returns how many. (A failed database write keeps them for the
+  /// next call.)
+  size_t compactTombstones(double now);
+  size_t numTombstones() const;  ///< tombstones held
 
   /// Live objects attached to any of `keyframes` (keyframe attachment), each once, by id.
   std::vector<VirtualObject> objectsOfKeyFrames(const std::vector<KeyFrameId>& keyframes) const;
@@ -149,16 +157,19 @@ class VoStore {
   /// Checks a requested state and canonicalises it (LINE centre, ANCHOR end
   /// points, unit normal). Returns kNone or the rejection with `reason` set.
   VoReject check(VirtualObject* vo, std::string* reason) const;
-  /// The checks of a change to an existing object (known, live, base version;
-  /// base_version 0 passes when `unconditional_ok`). `entry` receives the
-  /// object when it is known.
-  VoReject checkExisting(ObjectId id, uint32_t base_version, bool unconditional_ok,
+  /// The checks of a change to an existing object (known, live, the policy for
+  /// `editor`, a base version that is not 0 and is current). `entry`
+  /// receives the object when it is known.
+  VoReject checkExisting(ObjectId id, uint32_t base_version, bool deleting,
                          const std::string& editor, std::string* reason,
                          const VoRecord** entry) const;
   /// Writes `entry` as the next version of `old` (edited by `editor`) to the
   /// database, then in memory; a failed write changes nothing (kStorage).
   /// write_mutex_ held.
   VoOutcome commitVersion(VoRecord entry, const VoRecord& old, const std::string& editor);
+  /// compactTombstones with write_mutex_ held; `over_count`: also the oldest
+  /// beyond max_tombstones.
+  size_t compactLocked(double now, bool over_count);
   /// Puts `record` in the keyframe index / takes it out. state_mutex_ held exclusively.
   void attach(const VoRecord& record);
   void detach(const VoRecord& record);
@@ -175,6 +186,7 @@ class VoStore {
   std::map<ObjectId, VoRecord> objects_;  ///< by id: readers list them in order
   std::unordered_map<KeyFrameId, std::vector<ObjectId>> keyframe_index_;
   size_t num_live_ = 0;
+  std::map<ObjectId, double> deleted_at_;  ///< tombstones: when deleted (steady s)
   Eigen::Vector3d map_min_, map_max_;
 };
 

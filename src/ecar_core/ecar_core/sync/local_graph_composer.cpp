@@ -267,10 +267,23 @@ void LocalGraphComposer::addObjects(const std::vector<VirtualObject>& objects,
     if (!visible) gone.push_back(kv.first);
   }
   if (gone.empty() || !lookups.objects) return;
-  for (const VirtualObject& vo : lookups.objects(gone)) {
-    if (!vo.deleted) continue;
-    out->objects.push_back(vo);
-    sent.erase(vo.id);
+  const std::vector<VirtualObject> known = lookups.objects(gone);  // by id, as `gone`
+  size_t k = 0;
+  for (const ObjectId id : gone) {
+    while (k < known.size() && known[k].id < id) ++k;
+    if (k < known.size() && known[k].id == id) {
+      if (!known[k].deleted) continue;
+      out->objects.push_back(known[k]);
+    } else {
+      // The store compacted its tombstone (VoStoreConfig::tombstone_retention): tell the
+      // device it is gone with a tombstone of its own, one version past what it holds.
+      VirtualObject tombstone;
+      tombstone.id = id;
+      tombstone.version = sent.at(id) + 1;
+      tombstone.deleted = true;
+      out->objects.push_back(tombstone);
+    }
+    sent.erase(id);
   }
 }
 

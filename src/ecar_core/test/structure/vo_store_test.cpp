@@ -27,6 +27,7 @@
 #include <thread>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "test_support.h"
 
 namespace ecar {
@@ -158,7 +159,14 @@ TEST(VoStore, RegisterManipulateDeleteVersions) {
   EXPECT_TRUE(vo->position.isApprox(Eigen::Vector3d(0.5, 1, 0)));
   EXPECT_EQ(vo->owner, "device_0");  // the registering device stays the owner
 
-  const VoOutcome d = store.remove(a.id, 2, "device_1");
+  // vo.policy owner_delete (the default): device_1 moved it but only device_0 deletes it.
+  const VoOutcome refused = store.remove(a.id, 2, "device_1");
+  EXPECT_EQ(refused.code, VoReject::kNotOwner);
+  EXPECT_NE(refused.reason.find(
+                "deleting object 1 is for its owner device_0 only (vo.policy owner_delete)"),
+            std::string::npos)
+      << refused.reason;
+  const VoOutcome d = store.remove(a.id, 2, "device_0");
   ASSERT_TRUE(d.accepted) << d.reason;
   EXPECT_EQ(d.version, 3u);
   vo = store.get(a.id);
@@ -229,7 +237,7 @@ TEST(VoStore, RejectsWithReasons) {
   VoOutcome out = store.manipulate(ObjectId(42), 1, anchor({0, 0, 0}));
   expectReject(out, VoReject::kUnknownId, "unknown object id 42");
   EXPECT_EQ(out.version, 0u);
-  expectReject(store.remove(ObjectId(42)), VoReject::kUnknownId, "unknown object id 42");
+  expectReject(store.remove(ObjectId(42), 1, ""), VoReject::kUnknownId, "unknown object id 42");
   out = store.manipulate(id, 1, line({0, 0, nan}, {1, 0, 0}));
   expectReject(out, VoReject::kNotFinite, "start is not finite");
   EXPECT_EQ(out.version, 1u);  // the store's version
@@ -238,12 +246,15 @@ TEST(VoStore, RejectsWithReasons) {
   expectReject(store.manipulate(id, 2, line({0, 0, 0}, {1, 0, 0})), VoReject::kStaleVersion,
                "base_version 2 is newer than the store's version 1");
   expectReject(store.manipulate(id, 0, line({0, 0, 0}, {1, 0, 0})), VoReject::kStaleVersion,
-               "stale base_version 0: the store has version 1");
+               "a change must name the version it applies to (base_version 0");
   EXPECT_TRUE(store.manipulate(id, 1, line({0, 0, 0}, {2, 0, 0}), "device_1").accepted);
   out = store.manipulate(id, 1, line({0, 0, 0}, {3, 0, 0}), "device_1");
   expectReject(out, VoReject::kStaleVersion, "stale base_version 1: the store has version 2");
   EXPECT_EQ(out.version, 2u);
-  expectReject(store.remove(id, 1), VoReject::kStaleVersion, "the store has version 2");
+  expectReject(store.remove(id, 1, ""), VoReject::kStaleVersion, "the store has version 2");
+  // No unconditional deletes: a delete names the version it deletes.
+  expectReject(store.remove(id, 0, ""), VoReject::kStaleVersion,
+               "a delete must name the version it applies to");
 
   // The map bounds can be narrowed at run time.
   store.setMapBounds(Eigen::Vector3d::Constant(-10), Eigen::Vector3d::Constant(10));
@@ -251,11 +262,11 @@ TEST(VoStore, RejectsWithReasons) {
   EXPECT_THROW(store.setMapBounds(Eigen::Vector3d::Constant(1), Eigen::Vector3d::Constant(-1)),
                Error);
 
-  ASSERT_TRUE(store.remove(id).accepted);  // base_version 0: unconditional
+  ASSERT_TRUE(store.remove(id, 2, "").accepted);
   out = store.manipulate(id, 3, line({0, 0, 0}, {1, 0, 0}));
   expectReject(out, VoReject::kDeleted, "object 1 was deleted (version 3)");
   EXPECT_EQ(out.version, 3u);
-  expectReject(store.remove(id), VoReject::kDeleted, "was deleted");
+  expectReject(store.remove(id, 3, ""), VoReject::kDeleted, "was deleted");
 
   // Rejections consumed no id and left the object at its accepted states.
   EXPECT_EQ(store.nextId(), ObjectId(2));
@@ -282,6 +293,59 @@ TEST(VoStore, FullStoreAndKeyFrameModeRejections) {
   const VoOutcome none = kf_store.registerObject(anchor({0, 0, 0}));
   EXPECT_EQ(none.code, VoReject::kNoKeyFrame);
   EXPECT_NE(none.reason.find("keyframe"), std::string::npos);
+}
+
+TEST(VoStore, PoliciesDecideWhoChangesWhat) {
+  for (const VoPolicy policy : {VoPolicy::kOpen, VoPolicy::kOwnerDelete, VoPolicy::kOwnerOnly}) {
+    SCOPED_TRACE(toString(policy));
+    VoStoreConfig config = memoryConfig();
+    config.policy = policy;
+    VoStore store(config);
+    const ObjectId id = store.registerObject(anchor({0, 0, 0}, "device_0")).id;
+    const VoOutcome move = store.manipulate(id, 1, anchor({1, 0, 0}), "device_1");
+    EXPECT_EQ(move.accepted, policy != VoPolicy::kOwnerOnly) << move.reason;
+    const uint32_t v = store.get(id)->version;
+    const VoOutcome del = store.remove(id, v, "device_1");
+    EXPECT_EQ(del.accepted, policy == VoPolicy::kOpen) << del.reason;
+    if (!del.accepted) {
+      EXPECT_EQ(del.code, VoReject::kNotOwner);
+      EXPECT_NE(del.reason.find("for its owner device_0 only"), std::string::npos) << del.reason;
+      // The operator's rviz user and the owner may.
+      EXPECT_TRUE(store.manipulate(id, v, anchor({2, 0, 0}), "rviz").accepted);
+      EXPECT_TRUE(store.remove(id, v + 1, "device_0").accepted);
+    }
+  }
+  EXPECT_EQ(parseVoPolicy("owner_only"), VoPolicy::kOwnerOnly);
+  EXPECT_THROW(parseVoPolicy("anyone"), Error);
+}
+
+TEST(VoStore, TombstonesAreCompactedAndDoNotFillTheStore) {
+  VoStoreConfig config = memoryConfig();
+  config.max_objects = 3;
+  config.tombstone_retention = 100.0;
+  config.max_tombstones = 4;
+  VoStore store(config);
+  // One device registering and deleting in a loop never fills the store for good.
+  std::vector<ObjectId> ids;
+  for (int i = 0; i < 10; ++i) {
+    const VoOutcome r = store.registerObject(anchor({0, 0, 0}, "device_0"));
+    ASSERT_TRUE(r.accepted) << i << ": " << r.reason;
+    ASSERT_TRUE(store.remove(r.id, 1, "device_0").accepted);
+    ids.push_back(r.id);
+  }
+  // Live objects are limited; tombstones beyond max_tombstones went, oldest first.
+  EXPECT_EQ(store.numLive(), 0u);
+  EXPECT_EQ(store.numTombstones(), 4u);
+  EXPECT_FALSE(store.get(ids[0]).has_value());
+  EXPECT_TRUE(store.get(ids[9])->deleted);
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(store.registerObject(anchor({0, 0, 0})).accepted);
+  EXPECT_EQ(store.registerObject(anchor({0, 0, 0})).code, VoReject::kFull);
+  // Within the retention nothing goes; after it, every tombstone does (from the database too).
+  EXPECT_EQ(store.compactTombstones(steadySeconds()), 0u);
+  EXPECT_EQ(store.compactTombstones(steadySeconds() + 101.0), 4u);
+  EXPECT_EQ(store.numTombstones(), 0u);
+  EXPECT_EQ(store.numObjects(), 3u);
+  EXPECT_EQ(store.nextId(), ObjectId(14));  // ids are never reused
 }
 
 // A drag: one device sends a MANIPULATE per frame, each before the previous
@@ -316,7 +380,9 @@ struct AttachedStore {
   bool manipulate(ObjectId id, uint32_t base, const VirtualObject& vo) {
     return attached(store.manipulate(id, base, vo)).valid();
   }
-  bool remove(ObjectId id) { return attached(store.remove(id)).valid(); }
+  bool remove(ObjectId id) {
+    return attached(store.remove(id, store.get(id) ? store.get(id)->version : 1, "")).valid();
+  }
   std::vector<VirtualObject> objectsInCells(const std::vector<CellKey>& cells) const {
     return store.objects(grid.objectsInCells(cells));
   }
@@ -447,7 +513,7 @@ TEST(VoStoreKeyFrame, HangsOnTheNearestKeyFrameAtRegistration) {
   got = store.objectsOfKeyFrames({KeyFrameId(7)});
   ASSERT_EQ(got.size(), 1u);
   EXPECT_EQ(got[0].position, Eigen::Vector3d(30, 0, 0));
-  ASSERT_TRUE(store.remove(b).accepted);
+  ASSERT_TRUE(store.remove(b, 1, "").accepted);
   got = store.objectsOfKeyFrames({KeyFrameId(8)});
   ASSERT_EQ(got.size(), 1u);
   EXPECT_EQ(got[0].id, c);
@@ -507,8 +573,8 @@ TEST(VoStorePersistence, ReloadsEveryObjectAndTheIdCounter) {
     }
     ASSERT_TRUE(store.manipulate(ObjectId(3), 1, line({3, 3, 0}, {3.5, 3.1, 0.2})).accepted);
     ASSERT_TRUE(store.manipulate(ObjectId(3), 2, line({4, 3, 0}, {4.5, 3.1, 0.2})).accepted);
-    ASSERT_TRUE(store.remove(ObjectId(5)).accepted);
-    ASSERT_TRUE(store.remove(ObjectId(20)).accepted);  // the highest id, deleted
+    ASSERT_TRUE(store.remove(ObjectId(5), 1, "").accepted);
+    ASSERT_TRUE(store.remove(ObjectId(20), 1, "").accepted);  // the highest id, deleted
     saved = store.allObjects();
     for (const VirtualObject& vo : saved) {
       cells.push_back(vo.deleted ? std::vector<CellKey>()

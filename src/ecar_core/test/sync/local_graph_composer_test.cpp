@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/structure/vo_store.h"
 
 namespace ecar {
@@ -444,6 +445,36 @@ TEST_F(LocalGraphTest, VisibleObjectsAndTombstonesOfDeletedOnes) {
   in.objects = nullptr;
   EXPECT_TRUE(composer.compose(map, in, with_store, &direct)->objects.empty());
   EXPECT_TRUE(direct.objects().empty());
+}
+
+TEST_F(LocalGraphTest, AHeldObjectWhoseTombstoneWasCompactedGetsOneOfItsOwn) {
+  VoStoreConfig store_config;
+  store_config.database_path = ":memory:";
+  store_config.tombstone_retention = 0.0;
+  VoStore store(store_config);
+  const ObjectId a = store.registerObject(anchorAt(1.0)).id;
+  ComposerLookups with_store = lookups;
+  with_store.objects = [&](const std::vector<ObjectId>& ids) { return store.objects(ids); };
+  DeviceSyncState state;
+  const TrackResult r = trackedResult(0, 20);
+  ComposerInput in;
+  in.frame = &r;
+  in.map_epoch = 1;
+  std::vector<VirtualObject> visible = store.objects({a});
+  in.objects = &visible;
+  ASSERT_EQ(composer.compose(map, in, with_store, &state)->objects.size(), 1u);
+  // Deleted out of the device's view and compacted before its next graph.
+  visible.clear();
+  ASSERT_TRUE(store.remove(a, 1, "device_2").accepted);
+  ASSERT_EQ(store.compactTombstones(steadySeconds()), 1u);
+  ASSERT_FALSE(store.get(a).has_value());
+  auto g = composer.compose(map, in, with_store, &state);
+  ASSERT_EQ(g->objects.size(), 1u);
+  EXPECT_EQ(g->objects[0].id, a);
+  EXPECT_TRUE(g->objects[0].deleted);
+  EXPECT_EQ(g->objects[0].version, 2u);  // past the version the device holds
+  EXPECT_TRUE(state.objects().empty());
+  EXPECT_TRUE(composer.compose(map, in, with_store, &state)->objects.empty());  // once
 }
 
 TEST_F(LocalGraphTest, FramesAlignedInAReplacedMapAreDropped) {

@@ -106,6 +106,10 @@ struct ServerConfig {
   /// vo.rviz_user: rviz may register (Publish Point) and move (markers) VOs as
   /// the user "rviz"; false = the markers only show them.
   bool vo_rviz_user = true;
+  /// vo.max_interaction_rate (per s, 0 = unlimited) and vo.interaction_burst:
+  /// each device's (and rviz's) interactions (GridConnectionConfig).
+  double vo_max_interaction_rate = 50.0;
+  double vo_interaction_burst = 100.0;
   /// Besides the planes hit from the aligned pose, a local graph carries the
   /// planes linked to the frame's local keyframes.
   bool graph_keyframe_planes = true;

@@ -10,6 +10,7 @@
 #include <ros/console.h>
 #include <ros/node_handle.h>
 
+#include "ecar_core/common/timing.h"
 #include "ecar_core/server/global_graph.h"
 #include "ecar_server/config.h"
 
@@ -38,8 +39,8 @@ ServerConfig loadServerConfig(const ros::NodeHandle& nh);
 /// when it cannot be created (e.g. the VO database cannot be opened).
 std::shared_ptr<ecar::GlobalGraph> sharedGraph(const std::string& key, const ServerConfig& config);
 
-/// Seconds on a monotonic clock (device timeouts).
-double steadySeconds();
+/// Seconds on the steady clock (the registry's clock for device timeouts).
+using ecar::steadySeconds;
 
 /// Runs a nodelet's initialisation. nodelet's manager swallows an exception
 /// thrown by onInit (its loader only says "Failed to load"), so this logs it as
