@@ -168,6 +168,27 @@ ecar::LocalGraph fromMsg(const ecar_msgs::LocalGraph& msg, std::vector<std::stri
   }
   g.mode = msg.sync_mode == ecar_msgs::LocalGraph::SYNC_EDGESLAM ? ecar::SyncMode::kEdgeSlam
                                                                  : ecar::SyncMode::kEcar;
+  // Bounds on every list (a graph of a real session is far below them): a hostile or broken
+  // server cannot make the device hold or process without limit.
+  const auto bound = [](const char* field, size_t n, size_t max) {
+    if (n > max) {
+      throw ecar::Error(std::string(field) + ": " + std::to_string(n) + " entries, more than " +
+                        std::to_string(max));
+    }
+  };
+  bound("points", msg.points.size(), kMaxGraphPoints);
+  bound("positions", msg.positions.size(), msg.points.size());
+  bound("keyframes", msg.keyframes.size(), kMaxGraphKeyFrames);
+  bound("map_points", msg.map_points.size(), kMaxGraphMapPoints);
+  bound("planes", msg.planes.size(), kMaxGraphPlanes);
+  bound("removed_planes", msg.removed_planes.size(), kMaxGraphPlanes);
+  bound("objects", msg.objects.size(), kMaxGraphObjects);
+  for (size_t i = 0; i < msg.keyframes.size(); ++i) {
+    bound("keyframes[].point_ids", msg.keyframes[i].point_ids.size(), kMaxGraphMapPoints);
+  }
+  for (size_t i = 0; i < msg.planes.size(); ++i) {
+    bound("planes[].boundary", msg.planes[i].boundary.size(), kMaxPlaneBoundary);
+  }
   g.points.reserve(msg.points.size());
   for (const auto& p : msg.points) g.points.push_back(fromMsg(p));
   g.positions.reserve(msg.positions.size());

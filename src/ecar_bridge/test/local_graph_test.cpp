@@ -228,6 +228,37 @@ TEST(LocalGraphTest, BadFieldsAreReportedByName) {
   EXPECT_THROW(fromMsg(msg), ecar::Error);
 }
 
+TEST(LocalGraphTest, EveryListIsBounded) {
+  const auto error = [](const ecar_msgs::LocalGraph& msg) {
+    try {
+      fromMsg(msg);
+    } catch (const ecar::Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  ecar_msgs::LocalGraph msg;
+  msg.status = ecar_msgs::LocalGraph::LOST;
+  msg.points.resize(kMaxGraphPoints + 1);
+  EXPECT_NE(error(msg).find("points: 65536 entries, more than 65535"), std::string::npos);
+  msg.points.resize(2);
+  msg.positions.resize(3);
+  EXPECT_NE(error(msg).find("positions: 3 entries, more than 2"), std::string::npos);
+  msg.positions.clear();
+  msg.keyframes.resize(kMaxGraphKeyFrames + 1);
+  EXPECT_NE(error(msg).find("keyframes: 1001 entries"), std::string::npos) << error(msg);
+  msg.keyframes.resize(1);
+  msg.keyframes[0].point_ids.resize(kMaxGraphMapPoints + 1);
+  EXPECT_NE(error(msg).find("keyframes[].point_ids"), std::string::npos) << error(msg);
+  msg.keyframes.clear();
+  msg.planes.resize(1);
+  msg.planes[0].boundary.resize(kMaxPlaneBoundary + 1);
+  EXPECT_NE(error(msg).find("planes[].boundary"), std::string::npos) << error(msg);
+  msg.planes.clear();
+  msg.objects.resize(kMaxGraphObjects + 1);
+  EXPECT_NE(error(msg).find("objects: 100001 entries"), std::string::npos) << error(msg);
+}
+
 TEST(LocalGraphTest, BadPlanesAndObjectsAreSkippedWithTheirReason) {
   ecar_msgs::LocalGraph msg;
   toMsg(ecarGraph(), &msg);

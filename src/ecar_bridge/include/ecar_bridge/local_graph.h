@@ -40,7 +40,16 @@ ecar::GraphKeyFrame fromMsg(const ecar_msgs::KeyFrameInfo& msg,
 /// order (as the composer emits them); throws ecar::Error otherwise, or when
 /// there are more than 65535 points.
 void toMsg(const ecar::LocalGraph& graph, ecar_msgs::LocalGraph* msg);
-/// Reads a local graph. Throws ecar::Error naming the field on an unknown
+/// Most entries a local graph may hold, per list (fromMsg refuses more).
+constexpr size_t kMaxGraphPoints = 65535;
+constexpr size_t kMaxGraphKeyFrames = 1000;
+constexpr size_t kMaxGraphMapPoints = 200000;
+constexpr size_t kMaxGraphPlanes = 4096;
+constexpr size_t kMaxGraphObjects = 100000;
+constexpr size_t kMaxPlaneBoundary = 4096;
+
+/// Reads a local graph. Throws ecar::Error naming the field and the bound
+/// when a list is longer than its kMaxGraph* (positions: than the points), on an unknown
 /// status or sync mode, a bad pose (when the status is tracked), a position
 /// whose index is not among the points or that is not finite, a bad keyframe
 /// or map point. A bad plane or object is left out with its reason appended

@@ -520,8 +520,45 @@ VoSnapshot VoStore::snapshot() const {
   return out;
 }
 
+void VoStore::checkLimits(const VoSnapshot& snapshot, const std::string& context) const {
+  // A well-formed but hostile file must not make the server walk billions of cells or hold
+  // more than it would have accepted object by object.
+  size_t live = 0, tombstones = 0;
+  for (const VoRecord& r : snapshot.objects) {
+    const VirtualObject& vo = r.vo;
+    const std::string what = context + ": object " + std::to_string(vo.id.value);
+    if (vo.deleted) {
+      ++tombstones;
+      continue;
+    }
+    ++live;
+    for (const Eigen::Vector3d* p : {&vo.position, &vo.start, &vo.end}) {
+      if ((p->array() < config_.map_min.array()).any() ||
+          (p->array() > config_.map_max.array()).any()) {
+        throw Error(what + ": a point lies outside the map bounds (vo.map_min, vo.map_max)");
+      }
+    }
+    if (vo.kind == VoKind::kLine && (vo.end - vo.start).norm() > config_.max_line_length * 1.001) {
+      throw Error(what + ": a line of " + std::to_string((vo.end - vo.start).norm()) +
+                  " m, longer than max_line_length");
+    }
+    if (vo.width < 0.0f || vo.width > config_.max_width * 1.001) {
+      throw Error(what + ": width " + std::to_string(vo.width) + " m outside [0, max_width]");
+    }
+    if (vo.owner.size() > config_.max_owner_length) throw Error(what + ": owner too long");
+  }
+  if (live > config_.max_objects) {
+    throw Error(context + ": " + std::to_string(live) + " live objects, more than max_objects " +
+                std::to_string(config_.max_objects));
+  }
+  if (tombstones > 10 * config_.max_tombstones + 100000) {
+    throw Error(context + ": " + std::to_string(tombstones) + " tombstones (corrupted?)");
+  }
+}
+
 void VoStore::replaceAll(const VoSnapshot& snapshot) {
   checkVoSnapshot(snapshot, config_.database_path + ": replacing the VOs");
+  checkLimits(snapshot, config_.database_path + ": replacing the VOs");
   std::map<ObjectId, VoRecord> objects;
   std::vector<const VoRecord*> rows;
   size_t live = 0;

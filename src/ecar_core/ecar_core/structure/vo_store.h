@@ -137,13 +137,13 @@ class VoStore {
   /// under one lock (a consistent copy).
   VoSnapshot snapshot() const;
   /// Replaces every object by the snapshot's (a loaded map): checks it
-  /// (checkVoSnapshot), rewrites the database in one transaction (all rows and
-  /// the id counter) and only then swaps the objects in memory, so a failure
-  /// (throws ecar::Error naming the database and the problem) leaves both the
-  /// database and the store as they were, and a kill -9 right after the
-  /// call keeps the loaded objects. Cells are recomputed from the geometry.
-  /// Ids are never reused: the id counter becomes the larger of the
-  /// snapshot's and the store's.
+  /// (checkVoSnapshot and the limits a registration checks: outer map bounds,
+  /// line length, width, owner, max_objects), rewrites the database in one transaction (all rows
+  /// and the id counter) and only then swaps the objects in memory, so a failure (throws
+  /// ecar::Error naming the database and the problem) leaves both the database and the store as
+  /// they were, and a kill -9 right after the call keeps the loaded objects. Cells are recomputed
+  /// from the geometry. Ids are never reused: the id counter becomes the larger of the snapshot's
+  /// and the store's.
   void replaceAll(const VoSnapshot& snapshot);
 
   /// Writes a consistent copy of the database to `path` (SQLite online
@@ -167,6 +167,10 @@ class VoStore {
   /// database, then in memory; a failed write changes nothing (kStorage).
   /// write_mutex_ held.
   VoOutcome commitVersion(VoRecord entry, const VoRecord& old, const std::string& editor);
+  /// Throws ecar::Error (prefixed by `context`) when a snapshot's live objects
+  /// break the limits a registration checks (outer map bounds, line length,
+  /// width, owner, max_objects) or it holds implausibly many tombstones.
+  void checkLimits(const VoSnapshot& snapshot, const std::string& context) const;
   /// compactTombstones with write_mutex_ held; `over_count`: also the oldest
   /// beyond max_tombstones.
   size_t compactLocked(double now, bool over_count);

@@ -33,6 +33,7 @@
 namespace ecar {
 namespace {
 
+using ecar::testing::errorOf;
 using ecar::testing::TempDir;
 
 namespace fs = std::filesystem;
@@ -346,6 +347,48 @@ TEST(VoStore, TombstonesAreCompactedAndDoNotFillTheStore) {
   EXPECT_EQ(store.numTombstones(), 0u);
   EXPECT_EQ(store.numObjects(), 3u);
   EXPECT_EQ(store.nextId(), ObjectId(14));  // ids are never reused
+}
+
+TEST(VoStore, AHostileSnapshotIsRefusedWholeAndChangesNothing) {
+  VoStoreConfig config = memoryConfig();
+  config.max_objects = 5;
+  VoStore store(config);
+  const ObjectId kept = store.registerObject(anchor({1, 2, 3}, "device_0")).id;
+  const auto refused = [&](const VirtualObject& vo, const std::string& why) {
+    VoSnapshot snapshot;
+    VoRecord r;
+    r.vo = vo;
+    r.vo.id = ObjectId(1);
+    r.vo.version = 1;
+    snapshot.objects.push_back(r);
+    snapshot.next_id = ObjectId(2);
+    const std::string e = errorOf([&] { store.replaceAll(snapshot); });
+    EXPECT_NE(e.find(why), std::string::npos) << e;
+  };
+  // Well-formed, finite, but a line of 1.8 km or 1e8 m (billions of cells), points far outside,
+  // a huge width, a long owner name.
+  refused(line({-900, 0, 0}, {900, 0, 0}), "longer than max_line_length");
+  refused(line({0, 0, 0}, {1e8, 0, 0}), "outside the map bounds");
+  refused(anchor({5000, 0, 0}), "outside the map bounds");
+  VirtualObject wide = line({0, 0, 0}, {1, 0, 0});
+  wide.width = 1e6f;
+  refused(wide, "outside [0, max_width]");
+  refused(anchor({0, 0, 0}, std::string(500, 'x')), "owner too long");
+  // More live objects than max_objects.
+  VoSnapshot many;
+  for (uint32_t i = 1; i <= 6; ++i) {
+    VoRecord r;
+    r.vo = anchor({0, 0, 0});
+    r.vo.id = ObjectId(i);
+    r.vo.version = 1;
+    many.objects.push_back(r);
+  }
+  many.next_id = ObjectId(7);
+  EXPECT_NE(errorOf([&] { store.replaceAll(many); }).find("more than max_objects"),
+            std::string::npos);
+  // Nothing changed.
+  EXPECT_EQ(store.numObjects(), 1u);
+  EXPECT_EQ(store.get(kept)->position, Eigen::Vector3d(1, 2, 3));
 }
 
 // A drag: one device sends a MANIPULATE per frame, each before the previous
