@@ -23,6 +23,7 @@ COMMON_PKGS=(
   libgtest-dev googletest
   python3-numpy python3-matplotlib python3-yaml
   libturbojpeg0-dev  # JPEG headers checked before decoding (ecar_core/io/jpeg.h)
+  clang libclang-rt-14-dev  # the sanitizer and fuzz build (scripts/test.sh --sanitize, scripts/fuzz.sh)
   xvfb imagemagick clang-format
   iproute2 procps  # ip netns, tc, sysctl: the shared link (ecar_sim.links, run_session --link)
 )

@@ -3,12 +3,30 @@
 # and rostests (catkin_make run_tests, checked with catkin_test_results) and the
 # end-to-end tests under test/. Exits non-zero on any failure.
 #
-# Usage: scripts/test.sh
+# Usage: scripts/test.sh              everything (what CI runs)
+#        scripts/test.sh --sanitize   ecar_core's gtests built with AddressSanitizer and
+#                                     UndefinedBehaviorSanitizer (clang, build_sanitize/);
+#                                     --sanitize-quick leaves out the long SLAM and
+#                                     rendering tests (CI runs that one)
 set -eo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
 bash scripts/setup.sh
 source scripts/env.sh
+
+if [[ "${1:-}" == "--sanitize" || "${1:-}" == "--sanitize-quick" ]]; then
+  bash scripts/sanitize_build.sh
+  skip=()
+  # The long ones: whole SLAM sessions on rendered sequences (minutes each under ASan).
+  [[ "$1" == "--sanitize-quick" ]] && skip=(-E "$(cat test/sanitize/slow_tests.txt | paste -sd'|')")
+  echo "[test] ecar_core gtests with ASan + UBSan${skip:+ (quick: not $(tr -d '^$' <test/sanitize/slow_tests.txt | paste -sd' '))}"
+  mkdir -p build/test_results/sanitize
+  ASAN_OPTIONS=detect_leaks=1:strict_string_checks=1:detect_stack_use_after_return=1 \
+  UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+  GTEST_OUTPUT="xml:$ROOT/build/test_results/sanitize/" \
+    ctest --test-dir build_sanitize --output-on-failure "${skip[@]}"
+  exit $?
+fi
 
 echo "[test] building and running the package tests (catkin_make run_tests)"
 rm -rf build/test_results

@@ -110,14 +110,17 @@ class AtlasMergeTest(unittest.TestCase):
         # Both players preload before either starts: walker_b's player preloading only after
         # walker's first graph (5 s alone, 13 s under load in CI) let walker map the ground
         # around walker_b's start, and walker_b began in walker's map.
+        # walker_b goes once walker is tracked (its map exists), not at walker's first graph:
+        # that one may come before walker's map is made (LOST while initialising), and walker_b
+        # then made map 1 (a CI failure: the maps never merged).
         self.playback.start(datasets, held=True)
         self.playback.release(["walker"])
-        deadline = time.time() + 60.0
+        deadline = time.time() + 120.0
         while time.time() < deadline and not rospy.is_shutdown():
             with self.lock:
-                if self.graph_count["walker"] > 0:
+                if self.poses["walker"]:
                     break
-            time.sleep(0.1)
+            time.sleep(0.05)
         self.playback.release(["walker_b"])
         finished = self.playback.wait(400.0)
         self.assertTrue(all(finished.values()), "players did not finish: %s" % finished)

@@ -55,7 +55,7 @@ struct Surface {
   TexturePyramid texture;
 };
 
-struct RayHit {
+struct SceneHit {
   double t = 0.0;    ///< ray parameter: p = origin + t * direction
   int surface = -1;  ///< index into Renderer::surfaces()
   SurfaceLabel label = SurfaceLabel::kNone;
@@ -80,8 +80,8 @@ class Renderer {
 
   /// Exact ray cast in double precision (origin in the free space). nullopt
   /// when the ray escapes (cannot happen inside a closed space).
-  std::optional<RayHit> castRay(const Eigen::Vector3d& origin_w,
-                                const Eigen::Vector3d& direction_w) const;
+  std::optional<SceneHit> castRay(const Eigen::Vector3d& origin_w,
+                                  const Eigen::Vector3d& direction_w) const;
 
  private:
   struct BoxF {

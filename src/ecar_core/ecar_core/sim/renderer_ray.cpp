@@ -10,7 +10,8 @@
 
 namespace ecar {
 
-std::optional<RayHit> Renderer::castRay(const Eigen::Vector3d& o, const Eigen::Vector3d& d) const {
+std::optional<SceneHit> Renderer::castRay(const Eigen::Vector3d& o,
+                                          const Eigen::Vector3d& d) const {
   if (!o.allFinite() || !d.allFinite() || d.squaredNorm() == 0.0) return std::nullopt;
   // Walk out of the union of spaces: leave the farthest-reaching box that
   // contains the current point until the point is in no space.
@@ -77,7 +78,7 @@ std::optional<RayHit> Renderer::castRay(const Eigen::Vector3d& o, const Eigen::V
       surface = static_cast<int>(solid_base + b * 6) + near_face;
     }
   }
-  RayHit hit;
+  SceneHit hit;
   hit.t = t;
   hit.surface = surface;
   hit.label = surfaces_[surface].label;

@@ -15,7 +15,11 @@ std::vector<int> largestCluster(const std::vector<Eigen::Vector3d>& points,
                                 const std::vector<int>& members, const PlaneFrame& frame,
                                 double cell) {
   std::unordered_map<int64_t, std::vector<int>> cells;
-  auto key = [](int64_t x, int64_t y) { return (x << 32) ^ (y & 0xFFFFFFFFll); };
+  // Packed as unsigned: shifting a negative cell index is undefined (UBSan).
+  auto key = [](int64_t x, int64_t y) {
+    return static_cast<int64_t>((static_cast<uint64_t>(x) << 32) ^
+                                (static_cast<uint64_t>(y) & 0xFFFFFFFFull));
+  };
   for (int i : members) {
     const Eigen::Vector2d q = frame.to2d(points[i]) / cell;
     cells[key(static_cast<int64_t>(std::floor(q.x())), static_cast<int64_t>(std::floor(q.y())))]
