@@ -29,6 +29,7 @@ class Reader {
   /// Rejects keys outside `allowed` (typos must not be silently ignored).
   void allowOnly(const std::set<std::string>& allowed) const {
     for (const auto& kv : node_) {
+      if (!kv.first.IsScalar()) fail("a key that is not a name (a list or a map as a key)");
       const auto key = kv.first.as<std::string>();
       if (!allowed.count(key)) fail("unknown key '" + key + "'");
     }
@@ -413,16 +414,8 @@ const DeviceSpec& Scene::device(const std::string& device_name) const {
   throw Error(path + ": no device named '" + device_name + "' (devices: " + names + ")");
 }
 
-Scene loadScene(const std::string& path) {
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
-    throw Error(path + ": cannot open scene file");
-  } catch (const YAML::Exception& e) {
-    throw Error(path + ": not valid YAML (line " + std::to_string(e.mark.line + 1) + ": " + e.msg +
-                ")");
-  }
+/// The scene of a parsed file (loadScene); yaml-cpp throws for values of the wrong shape.
+static Scene readScene(const YAML::Node& root, const std::string& path) {
   const Reader r(root, path, "");
   r.allowOnly({"name", "camera", "noise_sigma", "texture", "spaces", "solids", "devices"});
   Scene scene;
@@ -466,6 +459,24 @@ Scene loadScene(const std::string& path) {
     }
   }
   return scene;
+}
+
+Scene loadScene(const std::string& path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw Error(path + ": cannot open scene file");
+  } catch (const YAML::Exception& e) {
+    throw Error(path + ": not valid YAML (line " + std::to_string(e.mark.line + 1) + ": " + e.msg +
+                ")");
+  }
+  try {
+    return readScene(root, path);
+  } catch (const YAML::Exception& e) {
+    // A value of another shape than the key takes (a list where a number goes, ...).
+    throw Error(path + ": line " + std::to_string(e.mark.line + 1) + ": " + e.msg);
+  }
 }
 
 }  // namespace ecar

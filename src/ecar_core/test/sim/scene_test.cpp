@@ -99,6 +99,18 @@ TEST_F(BadSceneTest, MissingFileAndInvalidYaml) {
   EXPECT_NE(msg.find(path_), std::string::npos) << msg;
 }
 
+// Found by the scene fuzz target (its input is test/fuzz/corpus/scene/regression-list-as-key.yaml):
+// a key that is a list, or a value of another shape than its key takes, made yaml-cpp throw
+// past the reader (std::terminate in make_dataset).
+TEST_F(BadSceneTest, ValuesOfTheWrongShapeAreErrorsNotCrashes) {
+  std::string msg = errorOf(std::string("name: x\n") + kCamera + "? [a, b]\n: 1\n");
+  EXPECT_NE(msg.find("a key that is not a name"), std::string::npos) << msg;
+  msg = errorOf(std::string("name: [x, y]\n") + kCamera);
+  EXPECT_NE(msg.find(path_), std::string::npos) << msg;
+  const std::string fuzzed = ECAR_REPO_ROOT "/test/fuzz/corpus/scene/regression-list-as-key.yaml";
+  EXPECT_THROW(loadScene(fuzzed), Error);
+}
+
 TEST_F(BadSceneTest, ErrorsNameTheKey) {
   const std::string base = std::string("name: x\n") + kCamera + kSpace;
   struct Case {
