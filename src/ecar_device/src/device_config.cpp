@@ -129,6 +129,7 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   l.read("cache_dir", &c.light.cache_dir);
   l.read("wait_subscribers", &c.light.wait_subscribers);
   l.read("start_topic", &c.light.start_topic);
+  l.read("loop", &c.light.loop);
   if (unknown) *unknown = r.unknown();
   c.validate();
   return c;

@@ -108,9 +108,16 @@ void Device::onLightTimer() {
   // On schedule; after a stall, go on from now rather than catch up in a burst.
   light_next_due_ =
       now - light_next_due_ > light_period_ ? now + light_period_ : light_next_due_ + light_period_;
-  const ecar::CachedUpload& u = uploads[light_next_++];
+  const bool forwards = !light_backwards_;
+  const ecar::CachedUpload& u = uploads[light_next_];
+  advanceLight(uploads.size());
   std_msgs::Header header;
-  header.seq = static_cast<uint32_t>(u.index);
+  // The dataset's frame index on the first pass (what the ground truth is
+  // indexed by); on the passes of a loop, on from there, so that frame
+  // numbers never repeat.
+  light_seq_ = light_passes_ == 0 ? static_cast<uint32_t>(u.index)
+                                  : light_seq_ + static_cast<uint32_t>(config_.every);
+  header.seq = light_seq_;
   header.stamp = ros::Time::now();
   header.frame_id = camera_frame_;
   cv::imdecode(u.jpeg, cv::IMREAD_GRAYSCALE, &light_gray_);
@@ -142,20 +149,41 @@ void Device::onLightTimer() {
       pending_.back().tracking_time = static_cast<float>(r.total_ms / 1000.0);
     }
     publishResult(header, light_gray_, r, uploaded);
-    // The touches scripted up to this frame, at its pose.
-    for (; light_next_touch_ < light_touches_.size() &&
+    // The touches scripted up to this frame, at its pose (forwards only).
+    for (; forwards && light_next_touch_ < light_touches_.size() &&
            light_touches_[light_next_touch_].frame <= u.index;
          ++light_next_touch_) {
       applyTouch(light_touches_[light_next_touch_], header.stamp);
     }
   }
-  if (light_next_ == uploads.size()) {
+  if (!config_.light.loop && light_next_ == uploads.size()) {
     std_msgs::Bool finished;
     finished.data = true;
     light_finished_pub_.publish(finished);
     ROS_INFO("%s: played the %zu uploads of %s (%zu not sent: %d in flight)",
              config_.device_id.c_str(), uploads.size(), config_.light.dataset.c_str(),
              light_blocked_, config_.max_in_flight);
+  }
+}
+
+void Device::advanceLight(size_t count) {
+  if (!config_.light.loop) {
+    ++light_next_;
+    return;
+  }
+  // Back and forth: ... n-2, n-1, n-2, ... 1, 0, 1, ...
+  const size_t last = count - 1;
+  if (!light_backwards_ && light_next_ < last) {
+    ++light_next_;
+  } else if (light_backwards_ && light_next_ > 0) {
+    --light_next_;
+  } else {
+    light_backwards_ = !light_backwards_;
+    light_next_ = count < 2 ? 0 : (light_backwards_ ? last - 1 : 1);
+    if (!light_backwards_) light_next_touch_ = 0;  // the touches again
+    ++light_passes_;
+    ROS_INFO("%s: looping: pass %zu (%s)", config_.device_id.c_str(), light_passes_ + 1,
+             light_backwards_ ? "backwards" : "forwards");
   }
 }
 

@@ -99,5 +99,30 @@ TEST(JpegTest, RefusesOtherFormatsWrongSizesBombsAndDamageBeforeOrWhileDecoding)
   EXPECT_FALSE(errorOf([&] { decodeJpegGray(damaged.data(), damaged.size(), &gray); }).empty());
 }
 
+// A header that fails inside libjpeg's marker reader left libturbojpeg's
+// handle broken: every later header on that thread failed with the same
+// message (found by the soak: one hostile upload, then every device's uploads
+// dropped on that server thread). The handle is replaced after a failure.
+TEST(JpegTest, AFailureDoesNotBreakTheNextImages) {
+  const cv::Mat img = pattern(160, 120);
+  const std::vector<uint8_t> jpeg = encode(img, ".jpg");
+  const std::vector<uint8_t> poison = {0xFF, 0xD8, 0xFF, 0x53, 0x00, 0x04, 0, 0, 0, 0, 0, 0};
+  for (int round = 0; round < 3; ++round) {
+    const std::string error = errorOf([&] { readJpegHeader(poison.data(), poison.size()); });
+    EXPECT_TRUE(contains(error, "Unsupported marker type 0x53")) << error;
+    const JpegHeader h = readJpegHeader(jpeg.data(), jpeg.size());
+    EXPECT_EQ(h.width, 160);
+    cv::Mat gray;
+    EXPECT_FALSE(errorOf([&] { decodeJpegGray(poison.data(), poison.size(), &gray); }).empty());
+    decodeJpegGray(jpeg.data(), jpeg.size(), &gray);
+    EXPECT_EQ(gray.size(), cv::Size(160, 120));
+    // A decoding failure (damaged data after a good header) too.
+    std::vector<uint8_t> cut(jpeg.begin(), jpeg.begin() + static_cast<long>(jpeg.size() / 2));
+    EXPECT_FALSE(errorOf([&] { decodeJpegGray(cut.data(), cut.size(), &gray); }).empty());
+    decodeJpegGray(jpeg.data(), jpeg.size(), &gray, &h);
+    EXPECT_EQ(gray.size(), cv::Size(160, 120));
+  }
+}
+
 }  // namespace
 }  // namespace ecar

@@ -121,6 +121,11 @@ struct DeviceConfig {
     /// whose cameras were not started in step: devices in step would all wait
     /// a whole period for a VO accepted just after their uploads.
     std::string start_topic;
+    /// ~light/loop: false = play the uploads once and publish player/finished;
+    /// true = walk the route back and forth for ever (the uploads forwards,
+    /// then backwards, ...), replaying the scripted touches on every forward
+    /// pass: soak runs (scripts/soak.sh). Never finished.
+    bool loop = false;
   } light;
 
   /// Throws ecar::Error naming the parameter (e.g. "~every") of the first bad value.
@@ -184,6 +189,9 @@ class Device {
   /// Plays the next cached upload once the server is joined: uploads it and
   /// tracks it; after the last one publishes player/finished.
   void onLightTimer();
+  /// Moves light_next_ to the upload after the one just played (~light/loop:
+  /// turning at either end of the route).
+  void advanceLight(size_t count);
   /// Calls ~connect_service when not connected (or silent too long).
   void connect();
   void onPaceTimer();
@@ -295,7 +303,10 @@ class Device {
   std::unique_ptr<ros::AsyncSpinner> connect_spinner_;
   // A light device's playback (~light/dataset); touched on its timer only.
   std::optional<ecar::UploadCache> light_cache_;
-  size_t light_next_ = 0;  ///< index into light_cache_->uploads()
+  size_t light_next_ = 0;         ///< index into light_cache_->uploads()
+  bool light_backwards_ = false;  ///< ~light/loop: on a backward pass
+  size_t light_passes_ = 0;       ///< ~light/loop: passes begun after the first
+  uint32_t light_seq_ = 0;        ///< header.seq of the upload just played
   bool light_started_ = false;
   size_t light_blocked_ = 0;              ///< uploads not sent for ~max_in_flight
   ros::WallTime light_joined_;            ///< when the server joined our topics (0: not yet)

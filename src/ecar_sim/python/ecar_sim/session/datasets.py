@@ -10,6 +10,7 @@ import json
 import os
 import shutil
 import subprocess
+from concurrent.futures import ThreadPoolExecutor
 
 import yaml
 
@@ -91,6 +92,14 @@ def ensure_dataset(args, env, scene_name, device):
     with open(digest_file, "w") as f:
         f.write(digest + "\n")
     return folder
+
+
+def ensure_datasets(args, env, scene_name, devices):
+    """{device: its dataset folder} (ensure_dataset for each), rendered one per core at a time
+    (make_dataset renders on one core). Raises RuntimeError when one fails."""
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        return dict(zip(devices, pool.map(
+            lambda d: ensure_dataset(args, env, scene_name, d), devices)))
 
 
 def read_frame_times(folder):

@@ -10,7 +10,6 @@ timeout, 2 on an error (a child died, the server did not come up).
 import os
 import shutil
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import rospy
 from std_msgs.msg import Time
@@ -18,7 +17,7 @@ from std_msgs.msg import Time
 from ecar_sim import links
 from ecar_sim.session import evaluating, launching, maps, options, structure
 from ecar_sim.session.collecting import Collector
-from ecar_sim.session.datasets import dataset_frames, ensure_dataset, read_fps, scene_devices
+from ecar_sim.session.datasets import dataset_frames, ensure_datasets, read_fps, scene_devices
 from ecar_sim.session.report import log, print_summary, progress_line
 
 PROGRESS_PERIOD_S = 5.0  # between progress lines during playback
@@ -194,11 +193,8 @@ def _run_on(args, out, log_dir, scene_name, devices, hosts):
     envs = session_env(port, log_dir, hosts)
     env = envs["server"]
 
-    # make_dataset renders on one core: one per core at a time.
     try:
-        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-            datasets = dict(zip(devices, pool.map(
-                lambda d: ensure_dataset(args, env, scene_name, d), devices)))
+        datasets = ensure_datasets(args, env, scene_name, devices)
     except RuntimeError as e:
         log("error: " + str(e))
         return 2
