@@ -110,6 +110,15 @@ std::string ServerConfig::autosavePath() const {
   return (db.parent_path() / (db.stem().string() + ".autosave.ecarmap")).string();
 }
 
+bool ServerConfig::mapFileIsAutosave() const {
+  const std::string autosave = autosavePath();
+  if (map_file.empty() || autosave.empty()) return false;
+  std::error_code a, b;  // the same file, however written ("x/../db.autosave.ecarmap")
+  const std::filesystem::path p = std::filesystem::weakly_canonical(map_file, a);
+  const std::filesystem::path q = std::filesystem::weakly_canonical(autosave, b);
+  return !a && !b && p == q;
+}
+
 ecar::SlamConfig ServerConfig::slamConfig() const {
   ecar::SlamConfig c;
   c.orb.num_features = orb_features;

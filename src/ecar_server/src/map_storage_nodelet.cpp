@@ -1,7 +1,9 @@
 // MapStorage: /ecar/save_map and /ecar/load_map (ecar_msgs/SaveMap, LoadMap)
 // write and read the server's whole map (keyframes, points, planes, grid
 // links, VOs) to one file, and the parameter map_file ("" = none) loads one at
-// startup, so that a session resumes in the same coordinate system. The work
+// startup, so that a session resumes in the same coordinate system (when it is
+// the server's own autosave, its VOs are merged with the database's, newest
+// version first, so a resume after a crash loses no acknowledged change). The work
 // is the global graph's (ecar::GlobalGraph::save / load); a failure is
 // answered with success = false and a message naming the path and the
 // problem, and the server goes on with the map it had. Devices notice a load
@@ -61,7 +63,11 @@ class MapStorageNodelet : public nodelet::Nodelet {
     if (!map_file.empty()) {
       std::string message;
       ecar::MapCounts counts;
-      if (load(map_file, &counts, &message)) {
+      // Our own autosave is an older snapshot of the database: resuming from
+      // it after a crash must keep what the database acknowledged since.
+      const ecar::VoLoad vos =
+          config.mapFileIsAutosave() ? ecar::VoLoad::kMergeNewer : ecar::VoLoad::kReplace;
+      if (load(map_file, &counts, &message, vos)) {
         NODELET_INFO("map_file: %s", message.c_str());
       } else {
         NODELET_ERROR("map_file: %s; starting with an empty map", message.c_str());
@@ -141,12 +147,18 @@ class MapStorageNodelet : public nodelet::Nodelet {
   }
 
   // Loads `path`; false with `message` naming the path and the problem.
-  bool load(const std::string& path, ecar::MapCounts* counts, std::string* message) {
+  bool load(const std::string& path, ecar::MapCounts* counts, std::string* message,
+            ecar::VoLoad vos = ecar::VoLoad::kReplace) {
     try {
       if (path.empty()) throw ecar::Error("load_map: the path is empty");
-      *counts = graph_->load(path, max_bytes_);
+      *counts = graph_->load(path, max_bytes_, vos);
       *message = "loaded " + describe(*counts) + " from '" + path + "', map epoch " +
                  std::to_string(graph_->epoch());
+      if (vos == ecar::VoLoad::kMergeNewer) {
+        *message += "; resumed from the autosave: " + std::to_string(counts->objects_from_file) +
+                    " virtual objects from the file, " + std::to_string(counts->objects_kept) +
+                    " as the database has them (the same, or changed since)";
+      }
       if (!counts->orphan_objects.empty()) {
         // Kept in the store (and in the next save), shown to no device.
         std::string ids;

@@ -113,6 +113,26 @@ TEST(ServerConfigTest, AutosaveGoesBesideTheDatabaseUnlessSaidOtherwise) {
   EXPECT_EQ(c.autosavePath(), "");
 }
 
+// A resume from the server's own autosave merges the VOs (newest version of
+// each), any other map_file replaces them.
+TEST(ServerConfigTest, MapFileIsTheAutosaveHoweverItIsWritten) {
+  ServerConfig c;
+  c.vo.database_path = "/var/lib/ecar/vo.sqlite";
+  EXPECT_FALSE(c.mapFileIsAutosave());  // no map_file
+  c.map_file = "/var/lib/ecar/vo.autosave.ecarmap";
+  EXPECT_TRUE(c.mapFileIsAutosave());
+  c.map_file = "/var/lib/ecar/maps/../vo.autosave.ecarmap";
+  EXPECT_TRUE(c.mapFileIsAutosave());
+  c.map_file = "/var/lib/ecar/office.ecarmap";
+  EXPECT_FALSE(c.mapFileIsAutosave());
+  c.map_file = "/var/lib/ecar/vo.autosave.ecarmap";
+  c.autosave_file = "none";
+  EXPECT_FALSE(c.mapFileIsAutosave());
+  c.autosave_file = "/srv/session.ecarmap";
+  c.map_file = "/srv/session.ecarmap";
+  EXPECT_TRUE(c.mapFileIsAutosave());
+}
+
 TEST(ServerConfigTest, SlamKeysReachTheCore) {
   ServerConfig c;
   c.loop_closing = false;

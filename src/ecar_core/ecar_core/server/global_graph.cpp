@@ -512,7 +512,7 @@ MapCounts GlobalGraph::save(const std::string& path) {
   return counts;
 }
 
-MapCounts GlobalGraph::load(const std::string& path, size_t max_bytes) {
+MapCounts GlobalGraph::load(const std::string& path, size_t max_bytes, VoLoad vos) {
   const auto start = std::chrono::steady_clock::now();
   const MapFileReader file = MapFileReader::open(path, max_bytes);
   // Decode everything before anything changes.
@@ -539,11 +539,6 @@ MapCounts GlobalGraph::load(const std::string& path, size_t max_bytes) {
   counts.planes = static_cast<uint32_t>(state.planes.size());
   counts.objects = static_cast<uint32_t>(state.vos.objects.size());
   counts.bytes = file.fileSize();
-  for (const VoRecord& r : state.vos.objects) {
-    if (!r.vo.deleted && std::find(ids.begin(), ids.end(), r.vo.map) == ids.end()) {
-      counts.orphan_objects.push_back(r.vo.id);
-    }
-  }
   if (!atlas) atlas = atlasFor(camera);
   try {
     // No upload is tracked while the atlas installs; the structure is frozen
@@ -551,7 +546,13 @@ MapCounts GlobalGraph::load(const std::string& path, size_t max_bytes) {
     atlas->install(std::move(maps), [&] {
       std::unique_lock<std::shared_mutex> frozen(structure_mutex_);
       // The VO store first: a database failure changes nothing.
-      vos_->replaceAll(state.vos);
+      if (vos == VoLoad::kMergeNewer) {
+        const VoStore::MergeCounts merged = vos_->mergeNewer(state.vos);
+        counts.objects_from_file = merged.from_snapshot;
+        counts.objects_kept = merged.kept;
+      } else {
+        vos_->replaceAll(state.vos);
+      }
       planes_.load(state.planes, state.next_plane_id);
       grid_.load(state.grid);
       grid_.attachObjects(vos_->allObjects(), vos_->config().cell_size,
@@ -561,6 +562,12 @@ MapCounts GlobalGraph::load(const std::string& path, size_t max_bytes) {
     });
   } catch (const Error& e) {
     throw Error("map file '" + path + "': " + e.what());
+  }
+  // After the load (a merge keeps the database's objects too).
+  for (const VirtualObject& vo : vos_->allObjects()) {
+    if (!vo.deleted && std::find(ids.begin(), ids.end(), vo.map) == ids.end()) {
+      counts.orphan_objects.push_back(vo.id);
+    }
   }
   try {
     updateVoBounds();

@@ -131,6 +131,20 @@ struct MapCounts {
   std::vector<ObjectId> orphan_objects;
   double milliseconds = 0.0;
   size_t bytes = 0;  ///< size of the file
+  /// VoLoad::kMergeNewer: objects taken from the file (newer there or only
+  /// there) and kept as the database has them.
+  size_t objects_from_file = 0, objects_kept = 0;
+};
+
+/// What a map file's VOs do to the store's (GlobalGraph::load).
+enum class VoLoad {
+  /// The file's objects replace the store's: a saved session loaded on purpose
+  /// (/ecar/load_map, or a map_file of another database).
+  kReplace,
+  /// The file is an older snapshot of this very store (the server's own
+  /// autosave, resumed after a crash): per object the newer version wins
+  /// (VoStore::mergeNewer), so no change acknowledged since the autosave is lost.
+  kMergeNewer,
 };
 
 class GlobalGraph {
@@ -255,8 +269,10 @@ class GlobalGraph {
   /// theirs. Objects of a map the file does not hold are kept and listed in
   /// orphan_objects. Throws ecar::Error naming the path, the section and the
   /// field; a file that is not a regular file or is larger than `max_bytes` is
-  /// refused unread (MapFileReader::open).
-  MapCounts load(const std::string& path, size_t max_bytes = kMaxMapFileBytes);
+  /// refused unread (MapFileReader::open). `vos`: replace the store's objects
+  /// or merge the newer of each (see VoLoad).
+  MapCounts load(const std::string& path, size_t max_bytes = kMaxMapFileBytes,
+                 VoLoad vos = VoLoad::kReplace);
 
   /// Adds a listener and replays the current state to it (onMapCreated for
   /// each map, onDeviceAdded for each device). It must outlive its registration.

@@ -85,12 +85,13 @@ class VoDatabase::Connection {
 
   /// Writes object rows in one transaction. Returns false with `error` set
   /// when it fails (the transaction is rolled back).
-  bool writeAll(const std::vector<const VoRecord*>& entries, std::string* error) {
+  bool writeAll(const std::vector<const VoRecord*>& entries, std::string* error,
+                std::optional<uint32_t> next_id) {
     return transaction(error, [&](std::string*) {
       bool ok = true;
       for (size_t i = 0; ok && i < entries.size(); ++i)
         ok = bindEntry(*entries[i]) && step(upsert_);
-      return ok;
+      return ok && (!next_id || setNextId(*next_id));
     });
   }
 
@@ -453,8 +454,9 @@ bool VoDatabase::write(const VoRecord& record, std::optional<uint32_t> next_id,
   return connection_->write(record, next_id, error);
 }
 
-bool VoDatabase::writeAll(const std::vector<const VoRecord*>& records, std::string* error) {
-  return connection_->writeAll(records, error);
+bool VoDatabase::writeAll(const std::vector<const VoRecord*>& records, std::string* error,
+                          std::optional<uint32_t> next_id) {
+  return connection_->writeAll(records, error, next_id);
 }
 
 bool VoDatabase::eraseAll(const std::vector<ObjectId>& ids, std::string* error) {

@@ -40,8 +40,10 @@ class VoDatabase {
   /// Writes one record and, when given, the id counter, in one transaction.
   /// Returns false with `error` set when it fails (rolled back).
   bool write(const VoRecord& record, std::optional<uint32_t> next_id, std::string* error);
-  /// Writes records in one transaction; false with `error` set when it fails.
-  bool writeAll(const std::vector<const VoRecord*>& records, std::string* error);
+  /// Writes records and, when given, the id counter in one transaction; false
+  /// with `error` set when it fails.
+  bool writeAll(const std::vector<const VoRecord*>& records, std::string* error,
+                std::optional<uint32_t> next_id = std::nullopt);
   /// Deletes the rows of `ids` (compacted tombstones) in one transaction;
   /// false with `error` set when it fails.
   bool eraseAll(const std::vector<ObjectId>& ids, std::string* error);

@@ -488,11 +488,7 @@ void VoStore::replaceAll(const VoSnapshot& snapshot) {
   checkLimits(snapshot, config_.database_path + ": replacing the VOs");
   std::map<ObjectId, VoRecord> objects;
   std::vector<const VoRecord*> rows;
-  size_t live = 0;
-  for (const VoRecord& r : snapshot.objects) {
-    if (!r.vo.deleted) ++live;
-    objects.emplace(r.vo.id, r);
-  }
+  for (const VoRecord& r : snapshot.objects) objects.emplace(r.vo.id, r);
   for (const VoRecord& r : snapshot.objects) rows.push_back(&objects.at(r.vo.id));
   std::lock_guard<std::mutex> write(write_mutex_);
   const uint32_t next_id = std::max(next_id_, snapshot.next_id.value);
@@ -500,19 +496,24 @@ void VoStore::replaceAll(const VoSnapshot& snapshot) {
   if (!db_->replaceAll(rows, next_id, &error)) {
     throw Error(config_.database_path + ": replacing the VOs failed: " + error);
   }
+  install(std::move(objects), next_id);
+}
+
+void VoStore::install(std::map<ObjectId, VoRecord> objects, uint32_t next_id) {
   std::unique_lock<std::shared_mutex> state(state_mutex_);
   objects_ = std::move(objects);
   keyframe_index_.clear();
   deleted_at_.clear();
+  num_live_ = 0;
   const double now = steadySeconds();
   for (const auto& kv : objects_) {
     if (!kv.second.vo.deleted) {
       attach(kv.second);
+      ++num_live_;
     } else {
       deleted_at_[kv.first] = now;
     }
   }
-  num_live_ = live;
   next_id_ = next_id;
 }
 

@@ -145,6 +145,20 @@ class VoStore {
   /// from the geometry. Ids are never reused: the id counter becomes the larger of the snapshot's
   /// and the store's.
   void replaceAll(const VoSnapshot& snapshot);
+  /// What mergeNewer did.
+  struct MergeCounts {
+    size_t from_snapshot = 0;  ///< objects taken from the snapshot (newer there, or only there)
+    size_t kept = 0;           ///< objects kept as the store has them (newer or as new here)
+  };
+  /// Merges a snapshot of this store's own past (the autosave a crashed server
+  /// resumes from) into it: per object the higher version wins, the store's
+  /// on a tie; objects only in the store are kept, objects only in the
+  /// snapshot added; the id counter is the larger. Unlike replaceAll, nothing
+  /// the database holds is lost: every change acknowledged after the snapshot
+  /// was taken stays. Same checks and order as replaceAll (only the rows taken
+  /// from the snapshot are written, in one transaction; none when the
+  /// database is newer throughout, so a full disk does not stop a resume).
+  MergeCounts mergeNewer(const VoSnapshot& snapshot);
 
   /// Writes a consistent copy of the database to `path` (SQLite online
   /// backup), e.g. to save a session. Throws ecar::Error when it fails.
@@ -171,6 +185,9 @@ class VoStore {
   /// break the limits a registration checks (outer map bounds, line length,
   /// width, owner, max_objects) or it holds implausibly many tombstones.
   void checkLimits(const VoSnapshot& snapshot, const std::string& context) const;
+  /// Swaps `objects` in as the store's (attachments and tombstone times made
+  /// anew); write_mutex_ held, the database already written.
+  void install(std::map<ObjectId, VoRecord> objects, uint32_t next_id);
   /// compactTombstones with write_mutex_ held; `over_count`: also the oldest
   /// beyond max_tombstones.
   size_t compactLocked(double now, bool over_count);

@@ -142,6 +142,10 @@ struct ServerConfig {
   double autosave_period = 60.0;  ///< s
   /// The autosave path autosave_file stands for ("" = off).
   std::string autosavePath() const;
+  /// Whether map_file is this server's own autosave (the same file as
+  /// autosavePath()): a resume after a crash, whose VOs are merged with the
+  /// database's (ecar::VoLoad::kMergeNewer) instead of replacing them.
+  bool mapFileIsAutosave() const;
 
   /// Throws ecar::Error naming the first invalid key.
   void validate() const;

@@ -4,7 +4,8 @@ reason (a service's message, an InteractionResult's reason, or, for uploads, whi
 the server's warning on /rosout when it is not throttled away) and nothing was accepted.
 
     h = Hostile(context)
-    h.next()     # sends the next kind; its outcome goes to h.results[kind]
+    got = h.next()     # sends the next kind: (kind, passed, outcome) or None
+    h.record(*got)     # into h.results[kind] (unless a fault hit it meanwhile)
     h.table()    # [(kind, what, sent, passed, an outcome)] for the report
 """
 
@@ -86,8 +87,8 @@ class Hostile:
         self.save_map = rospy.ServiceProxy("/ecar/save_map", SaveMap)
 
     def next(self):
-        """Sends the next kind in turn; returns (kind, passed, outcome), or None when it was not
-        sent (the server down or restarting, or the kind's preconditions not met yet, e.g. no
+        """Sends the next kind in turn; returns (kind, passed, outcome) for record(), or None
+        when it was not sent (the server down or restarting, or the kind's preconditions not met yet, e.g. no
         device has registered an object)."""
         kind, _ = self.kinds[self.turn % len(self.kinds)]
         self.turn += 1
@@ -99,7 +100,7 @@ class Hostile:
             passed, outcome = False, "no answer: %s" % e
         if passed is None:
             return None
-        return self.record(kind, passed, outcome)
+        return kind, passed, outcome
 
     def record(self, kind, passed, outcome):
         self.results.setdefault(kind, []).append((passed, outcome))
@@ -122,7 +123,9 @@ class Hostile:
         if pub is None:
             pub = self.upload_pubs[device] = rospy.Publisher("/%s/upload" % device, Upload,
                                                              queue_size=5)
-            time.sleep(1.0)  # let the server's subscriber connect
+        end = time.time() + ANSWER_TIMEOUT_S  # the server's subscriber linked
+        while pub.get_num_connections() == 0 and time.time() < end:
+            time.sleep(0.05)
         m = Upload()
         m.header.stamp = rospy.Time.now()
         m.device_id = device if device_id is None else device_id
@@ -199,7 +202,7 @@ class Hostile:
     def kind_delete_others_object(self):
         """delete another device's object (vo.policy owner_delete)"""
         objects = self.ctx.device_objects()
-        if not objects:
+        if not objects or not self.ctx.editor.ready():
             return None, None
         object_id, version = sorted(objects.items())[-1]
         ed = self.ctx.editor
@@ -210,7 +213,7 @@ class Hostile:
         ed = self.ctx.editor
         with ed.lock:
             own = sorted(ed.live)
-        if not own:
+        if not own or not ed.ready():
             return None, None
         return self._interact(ed.interaction(Interaction.DELETE, line(0, 0), own[0], 0))
 
@@ -222,6 +225,8 @@ class Hostile:
     def kind_interaction_impersonated(self):
         """an interaction on another device's topic with a wrong token"""
         ed = self.ctx.editor
+        if not ed.ready():  # the server is up and answering
+            return None, None
         m = ed.interaction(Interaction.REGISTER, line(0.2, 0.2), session=0x5EED)
         m.device_id = self.ctx.devices[0]
         m.request_id = 4000000000 + self.turn  # not one of the device's own
@@ -359,7 +364,10 @@ def _one_result(namespace, m):
     sub = rospy.Subscriber(namespace + "/interaction_result", InteractionResult, cb,
                            queue_size=50)
     pub = rospy.Publisher(namespace + "/interaction", Interaction, queue_size=5)
-    time.sleep(1.0)  # connections
+    end = time.time() + ANSWER_TIMEOUT_S  # both ends linked to the server
+    while (pub.get_num_connections() == 0 or sub.get_num_connections() == 0) and \
+            time.time() < end:
+        time.sleep(0.05)
     pub.publish(m)
     ev.wait(ANSWER_TIMEOUT_S)
     sub.unregister()

@@ -65,7 +65,7 @@ def build(args, soak, ledger, hostile, editor):
                                           if e["kind"] == "devices killed"),
                    "events": soak.events},
         "recovery": {"recoveries": len(soak.recoveries), "unrecovered": unrecovered,
-                     "median_s": statistics.median(recovered) if recovered else None,
+                     "median_s": round(statistics.median(recovered), 2) if recovered else None,
                      "max_s": max(recovered) if recovered else None,
                      "by_fault": soak.recoveries},
         "vo": {"acknowledged_objects": len(ledger.acked()),

@@ -109,6 +109,7 @@ class Soak:
         self.checks = []  # {"t", "when", "acked", "lost": [...]}
         self.pending = []  # (fault label, t, {device: None or seconds})
         self.map_sizes = []  # {"t", "life", "keyframes", "map_points", "planes", "objects"}
+        self.last_fault = 0.0  # wall time of the last kill of the server or the devices
         self.start_t = time.time()
         self.server = faults.NodeGroup(procs, "server", "the server", self.server_command, env,
                                        ["/edge_server"], "/edge_server")
@@ -301,9 +302,12 @@ def _run(args, soak, procs, env, port, disk):
                 hostile_job = (hostile_pool.submit(hostile.next), now)
             elif hostile_job[0].done():
                 got = hostile_job[0].result()
-                if got and not got[1]:
-                    log("%6.0f s: hostile input %s NOT refused: %s" % (soak.t(), got[0],
-                                                                           got[2]))
+                # A kill of the server while it waited for the answer says nothing.
+                if got and soak.last_fault < hostile_job[1]:
+                    hostile.record(*got)
+                    if not got[1]:
+                        log("%6.0f s: hostile input %s NOT refused: %s" % (soak.t(), got[0],
+                                                                               got[2]))
                 hostile_job = None
                 next_["hostile"] = now + args.hostile_every
             elif now - hostile_job[1] > HOSTILE_HANG_S:
@@ -318,6 +322,7 @@ def _run(args, soak, procs, env, port, disk):
             probe_job = probe_pool.submit(soak.probe_map)
             next_["probe"] = now + MAP_PROBE_S
         if now >= next_["kill"]:
+            soak.last_fault = time.time()
             killed = soak.server.kill9(master)
             soak.event("server killed", life=soak.server.life, nodes=len(killed))
             time.sleep(1.0)
@@ -328,6 +333,7 @@ def _run(args, soak, procs, env, port, disk):
             soak.expect_recovery("server kill %d" % (soak.server.life - 1))
             next_["kill"] = time.time() + args.kill_every
         if now >= next_["devices"]:
+            soak.last_fault = time.time()
             killed = soak.light.kill9(master)
             soak.event("devices killed", life=soak.light.life, nodes=len(killed))
             soak.light.start()
@@ -344,6 +350,7 @@ def _run(args, soak, procs, env, port, disk):
         for group in (soak.server, soak.light):
             why = group.crashed()
             if why:
+                soak.last_fault = time.time()
                 soak.event("CRASH", what=group.what, why=why)
                 group.start()
                 soak.expect_recovery("crash of %s" % group.name)
