@@ -168,6 +168,17 @@ std::vector<DeviceInfo> DeviceRegistry::devices() const {
   return out;
 }
 
+bool DeviceRegistry::forget(const std::string& name) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (devices_.count(name)) return false;
+  return ids_.erase(name) > 0;
+}
+
+size_t DeviceRegistry::numKnownNames() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return ids_.size();
+}
+
 std::string DeviceRegistry::name(DeviceId id) const {
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& [name, known] : ids_) {

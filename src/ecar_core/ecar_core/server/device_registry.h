@@ -96,8 +96,14 @@ class DeviceRegistry {
 
   std::optional<DeviceInfo> device(const std::string& name) const;
   std::vector<DeviceInfo> devices() const;
-  /// Name of a device id ever registered, empty when unknown.
+  /// Name of a device id ever registered (and not forgotten), empty when unknown.
   std::string name(DeviceId id) const;
+  /// Drops the id of `name` while it is not connected (its device made no
+  /// keyframe: nothing refers to the id); a later connect gets a new id.
+  /// False when it is connected or unknown.
+  bool forget(const std::string& name);
+  /// Names with an id (connected or not): what the registry holds.
+  size_t numKnownNames() const;
   const DeviceRegistryConfig& config() const { return config_; }
 
  private:
@@ -108,7 +114,7 @@ class DeviceRegistry {
   const DeviceRegistryConfig config_;
   mutable std::mutex mutex_;  // guards everything below
   std::map<std::string, Slot> devices_;
-  std::map<std::string, DeviceId> ids_;  ///< every name ever registered
+  std::map<std::string, DeviceId> ids_;  ///< names registered and not forgotten
   uint32_t next_id_ = 1;
 };
 

@@ -91,51 +91,6 @@ void GlobalGraph::onMapRemoved(MapId id) {
   for (GraphListener* l : listeners_) l->onMapRemoved(id);
 }
 
-DeviceConnectResult GlobalGraph::connect(const std::string& name, const PinholeCamera& camera,
-                                         const std::string& sync_mode, uint32_t keyframe_queue,
-                                         double now, uint64_t session) {
-  DeviceConnectResult result;
-  result.message = DeviceRegistry::refusal(name, sync_mode);
-  if (!result.message.empty()) return result;
-  const std::shared_ptr<Atlas> atlas = atlasFor(camera);
-  std::lock_guard<std::mutex> events(events_mutex_);
-  result = devices_.connect(name, sync_mode, keyframe_queue, now, session);
-  if (result.accepted) {
-    // Each device tracks with its own camera; its keyframes carry it.
-    atlas->setCamera(result.device.id, camera, config_.camera_tolerance);
-    std::lock_guard<std::mutex> lock(mutex_);
-    CameraPtr shared;
-    for (const auto& [id, c] : cameras_) {
-      if (!shared && c->difference(camera, config_.camera_tolerance).empty()) shared = c;
-    }
-    cameras_[result.device.id] = shared ? shared : std::make_shared<const PinholeCamera>(camera);
-  }
-  if (result.accepted && !result.reconnected) {
-    for (GraphListener* l : listeners_) l->onDeviceAdded(result.device);
-  }
-  return result;
-}
-
-SessionCheck GlobalGraph::disconnect(const std::string& name, uint64_t session) {
-  std::lock_guard<std::mutex> events(events_mutex_);
-  SessionCheck check = SessionCheck::kOk;
-  const std::optional<DeviceInfo> removed = devices_.disconnect(name, session, &check);
-  if (removed) {
-    for (GraphListener* l : listeners_) l->onDeviceRemoved(*removed);
-  }
-  return check;
-}
-
-std::vector<std::string> GlobalGraph::removeSilent(double now) {
-  std::lock_guard<std::mutex> events(events_mutex_);
-  std::vector<std::string> names;
-  for (const DeviceInfo& d : devices_.removeSilent(now)) {
-    names.push_back(d.name);
-    for (GraphListener* l : listeners_) l->onDeviceRemoved(d);
-  }
-  return names;
-}
-
 std::shared_ptr<Atlas> GlobalGraph::atlas() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return atlas_;
@@ -168,10 +123,6 @@ TrackResult GlobalGraph::track(DeviceId device, const cv::Mat& image, double tim
   TrackResult r = atlas->track(device, image, timestamp, frame_index, gravity_c, T_o_c, &map);
   finishMerges();
   return r;
-}
-
-void GlobalGraph::removeDevice(DeviceId device) {
-  if (const std::shared_ptr<Atlas> atlas = this->atlas()) atlas->removeDevice(device);
 }
 
 std::shared_ptr<SlamSystem> GlobalGraph::map(MapId id) const {
@@ -212,16 +163,6 @@ MapId GlobalGraph::largestMap() const {
     }
   }
   return best;
-}
-
-CameraPtr GlobalGraph::camera(const std::string& device) const {
-  const std::optional<DeviceInfo> info = devices_.device(device);
-  std::lock_guard<std::mutex> lock(mutex_);
-  if (info) {
-    const auto it = cameras_.find(info->id);
-    if (it != cameras_.end()) return it->second;
-  }
-  return first_camera_;
 }
 
 uint32_t GlobalGraph::epoch() const {

@@ -182,7 +182,10 @@ class GlobalGraph {
   TrackResult track(DeviceId device, const cv::Mat& image, double timestamp, uint32_t frame_index,
                     const std::optional<Eigen::Vector3d>& gravity_c,
                     const std::optional<SE3>& T_o_c);
-  /// Forgets a device's trackers.
+  /// Forgets a device's trackers once it is gone (after its last upload's
+  /// alignment); a device that made no keyframe and has not connected again
+  /// is forgotten altogether: its id, name and cameras (what the server holds
+  /// per name stays bounded by the devices that mapped).
   void removeDevice(DeviceId device);
   /// Null until the first device connected (or a map was loaded).
   std::shared_ptr<Atlas> atlas() const;

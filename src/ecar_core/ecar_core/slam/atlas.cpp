@@ -88,6 +88,27 @@ void Atlas::removeDevice(DeviceId device) {
   for (const auto& s : maps) s->removeDevice(device);
 }
 
+bool Atlas::hasKeyFramesOf(DeviceId device) const {
+  std::vector<std::shared_ptr<SlamSystem>> maps;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const Entry& e : maps_) maps.push_back(e.slam);
+  }
+  // The maps' locks are not taken under mutex_ (a merge takes them the other
+  // way round).
+  for (const auto& s : maps) {
+    if (s->hasKeyFramesOf(device)) return true;
+  }
+  return false;
+}
+
+void Atlas::forgetDevice(DeviceId device) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  devices_.erase(device);
+  cameras_.erase(device);
+  for (const Entry& e : maps_) e.slam->forgetDevice(device);
+}
+
 uint32_t Atlas::epoch() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return epoch_;

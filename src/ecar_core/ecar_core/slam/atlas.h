@@ -135,6 +135,11 @@ class Atlas {
   uint32_t epoch() const;
   /// Forgets a device (its trackers in every map).
   void removeDevice(DeviceId device);
+  /// Whether a keyframe of any map was made by the device.
+  bool hasKeyFramesOf(DeviceId device) const;
+  /// Forgets everything about a device whose id is retired (it made no
+  /// keyframe): its trackers and cameras.
+  void forgetDevice(DeviceId device);
   /// Replaces every map by `maps` (a loaded atlas: ids and their maps): the
   /// old maps' threads finish, every device relocalises with its next upload,
   /// the epoch moves past every map's. `first` runs before anything changes,

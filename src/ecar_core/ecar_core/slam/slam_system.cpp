@@ -70,6 +70,21 @@ void SlamSystem::removeDevice(DeviceId device) {
   trackers_.erase(device);
 }
 
+bool SlamSystem::hasKeyFramesOf(DeviceId device) const {
+  auto lock = map_.readLock();
+  for (const KeyFrameId id : map_.keyframeIds()) {
+    const KeyFrame* kf = map_.keyframe(id);
+    if (kf && kf->device == device) return true;
+  }
+  return false;
+}
+
+void SlamSystem::forgetDevice(DeviceId device) {
+  std::lock_guard<std::mutex> lock(trackers_mutex_);
+  trackers_.erase(device);
+  cameras_.erase(device);
+}
+
 TrackResult SlamSystem::track(DeviceId device, const cv::Mat& image, double timestamp,
                               uint32_t frame_index, const std::optional<Eigen::Vector3d>& gravity_c,
                               const std::optional<SE3>& T_o_c) {

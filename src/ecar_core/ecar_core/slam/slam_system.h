@@ -60,6 +60,12 @@ class SlamSystem {
   /// views); its keyframes stay in the map. The caller makes sure no thread is
   /// inside track() for that device. The next track() starts a new tracker.
   void removeDevice(DeviceId device);
+  /// Whether any keyframe of the map was made by the device.
+  bool hasKeyFramesOf(DeviceId device) const;
+  /// Forgets everything about a device that made no keyframe here: its tracker
+  /// and its camera (a device connecting under many names must not grow the
+  /// server's state for good).
+  void forgetDevice(DeviceId device);
   /// Tracks one image of a device (see Tracker::track). Runs alongside other
   /// devices' track() calls; installMap() waits for it and blocks it.
   TrackResult track(DeviceId device, const cv::Mat& image, double timestamp, uint32_t frame_index,

@@ -10,6 +10,9 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
+#include <future>
+
 #include "ecar_core/common/error.h"
 #include "ecar_core/server/grid_connection.h"
 #include "ecar_core/server/plane_segmentation.h"
@@ -137,6 +140,77 @@ TEST(GlobalGraphTest, SilentDevicesAreDroppedAndMayComeBack) {
   EXPECT_EQ(graph.disconnect("device_1", s1), SessionCheck::kNotConnected);
   EXPECT_EQ(graph.devices().devices().size(), 1u);
   graph.removeListener(&rec);
+}
+
+// A node connecting under ever new names must not grow the server for good:
+// a device gone without a keyframe is forgotten (id, name, cameras); one whose
+// keyframes name it keeps its id, and so does one that connected again.
+TEST(GlobalGraphTest, DevicesGoneWithoutKeyFramesAreForgotten) {
+  GlobalGraph graph(configWith(":memory:"));
+  const auto mapper = graph.connect("mapper", camera(), "", 0, 0.0);
+  {
+    const std::shared_ptr<SlamSystem> slam =
+        graph.map(MapId(1)) ? graph.map(MapId(1)) : graph.addMap(camera());
+    auto lock = slam->map().writeLock();
+    KeyFrame kf;
+    kf.device = mapper.device.id;
+    kf.camera = std::make_shared<const PinholeCamera>(camera640());
+    kf.T_c_w = lookingAlongX(0.0).inverse();
+    slam->map().addKeyFrame(std::move(kf));
+  }
+  const size_t known = graph.devices().numKnownNames();
+  for (int i = 0; i < 50; ++i) {
+    const std::string name = "ghost_" + std::to_string(i);
+    const auto g = graph.connect(name, camera(500.0 + i), "", 0, 1.0);
+    ASSERT_TRUE(g.accepted);
+    ASSERT_EQ(graph.disconnect(name, g.device.session), SessionCheck::kOk);
+    graph.removeDevice(g.device.id);  // the tracking nodelet does, once idle
+    EXPECT_EQ(graph.devices().name(g.device.id), "");
+  }
+  EXPECT_EQ(graph.devices().numKnownNames(), known);
+  // A ghost that comes back is a new device (nothing referred to its old id).
+  const auto back = graph.connect("ghost_0", camera(), "", 0, 2.0);
+  EXPECT_TRUE(back.accepted);
+  EXPECT_GT(back.device.id.value, mapper.device.id.value + 50);
+  // The mapper's keyframe names it: it keeps its id and camera when gone.
+  ASSERT_EQ(graph.disconnect("mapper", mapper.device.session), SessionCheck::kOk);
+  graph.removeDevice(mapper.device.id);
+  EXPECT_EQ(graph.devices().name(mapper.device.id), "mapper");
+  EXPECT_TRUE(graph.camera("mapper"));
+  EXPECT_EQ(graph.connect("mapper", camera(), "", 0, 3.0).device.id, mapper.device.id);
+  // A device that connected again before its removal ran keeps everything.
+  const auto c = graph.connect("quick", camera(), "", 0, 4.0);
+  ASSERT_EQ(graph.disconnect("quick", c.device.session), SessionCheck::kOk);
+  const auto c2 = graph.connect("quick", camera(), "", 0, 4.5);
+  graph.removeDevice(c.device.id);
+  EXPECT_EQ(graph.devices().name(c.device.id), "quick");
+  EXPECT_EQ(c2.device.id, c.device.id);
+}
+
+// The tracking nodelet calls removeDevice() from its onDeviceRemoved when the
+// device's queue is idle, i.e. inside disconnect() and removeSilent() (found by
+// the soak: a deadlock of the whole server when devices timed out).
+TEST(GlobalGraphTest, RemoveDeviceMayBeCalledFromTheRemovalListener) {
+  GlobalGraphConfig config = configWith(":memory:");
+  config.devices.device_timeout = 10.0;
+  GlobalGraph graph(config);
+  struct Remover : GraphListener {
+    GlobalGraph* graph;
+    void onDeviceRemoved(const DeviceInfo& d) override { graph->removeDevice(d.id); }
+  } remover;
+  remover.graph = &graph;
+  graph.addListener(&remover);
+  const auto a = graph.connect("device_0", camera(), "", 0, 0.0);
+  graph.connect("device_1", camera(), "", 0, 0.0);
+  auto done = std::async(std::launch::async, [&] {
+    graph.disconnect("device_0", a.device.session);
+    return graph.removeSilent(20.0);
+  });
+  ASSERT_EQ(done.wait_for(std::chrono::seconds(10)), std::future_status::ready)
+      << "deadlock: removeDevice() inside a removal listener";
+  EXPECT_EQ(done.get(), (std::vector<std::string>{"device_1"}));
+  EXPECT_EQ(graph.devices().numKnownNames(), 0u);  // neither made a keyframe
+  graph.removeListener(&remover);
 }
 
 TEST(GlobalGraphTest, SessionsGuardLiveDevicesNamesAndCounts) {

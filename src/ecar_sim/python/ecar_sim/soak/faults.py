@@ -16,6 +16,17 @@ import time
 import xmlrpc.client
 
 CALLER = "/soak"
+XMLRPC_TIMEOUT_S = 3.0
+
+
+class _TimeoutTransport(xmlrpc.client.Transport):
+    """An XML-RPC transport that gives up after XMLRPC_TIMEOUT_S: a node that does not answer
+    (hung, or a stale URI whose port another socket took) must not stop the run."""
+
+    def make_connection(self, host):
+        conn = super().make_connection(host)
+        conn.timeout = XMLRPC_TIMEOUT_S
+        return conn
 
 
 def node_names(master, prefix):
@@ -35,7 +46,7 @@ def node_pid(master, name):
         code, _, uri = master.lookupNode(CALLER, name)
         if code != 1:
             return None
-        proxy = xmlrpc.client.ServerProxy(uri)
+        proxy = xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport())
         code, _, pid = proxy.getPid(CALLER)
         return pid if code == 1 else None
     except (OSError, xmlrpc.client.Error):

@@ -88,8 +88,8 @@ class Hostile:
 
     def next(self):
         """Sends the next kind in turn; returns (kind, passed, outcome) for record(), or None
-        when it was not sent (the server down or restarting, or the kind's preconditions not met yet, e.g. no
-        device has registered an object)."""
+        when it was not sent (the server down or restarting, or the kind's preconditions not
+        met yet, e.g. no device has registered an object)."""
         kind, _ = self.kinds[self.turn % len(self.kinds)]
         self.turn += 1
         try:

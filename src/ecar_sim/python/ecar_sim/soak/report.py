@@ -30,6 +30,9 @@ def build(args, soak, ledger, hostile, editor):
     if crashes:
         failures.append("%d crash(es): %s" % (len(crashes), "; ".join(
             "%s: %s" % (c["what"], c["why"]) for c in crashes)))
+    if soak.hangs:
+        failures.append("the server stopped answering (a hang, restarted) at %s s" %
+                        ", ".join("%.0f" % t for t in soak.hangs))
     if lost:
         failures.append("%d acknowledged VO change(s) lost" % len(lost))
     if any("error" in c for c in soak.checks):
@@ -76,6 +79,7 @@ def build(args, soak, ledger, hostile, editor):
                "checks": soak.checks},
         "hostile": hostile_rows,
         "crashes": crashes,
+        "hangs_s": soak.hangs,
         "failures": failures,
         "passed": not failures,
     }

@@ -39,7 +39,7 @@ SAMPLE_S = 2.0  # between memory samples
 PROGRESS_S = 30.0
 CONNECT_TIMEOUT_S = 60.0
 DISK_MB = 512  # the database's tmpfs when not full
-HOSTILE_HANG_S = 30.0  # a hostile input without an answer this long is a hang
+HANG_S = 30.0  # a service call of the soak without an answer this long: the server hangs
 MAP_PROBE_S = 60.0  # between save_maps that count the map (keyframes, points, objects)
 
 
@@ -110,6 +110,7 @@ class Soak:
         self.pending = []  # (fault label, t, {device: None or seconds})
         self.map_sizes = []  # {"t", "life", "keyframes", "map_points", "planes", "objects"}
         self.last_fault = 0.0  # wall time of the last kill of the server or the devices
+        self.hangs = []  # run times at which the server stopped answering
         self.start_t = time.time()
         self.server = faults.NodeGroup(procs, "server", "the server", self.server_command, env,
                                        ["/edge_server"], "/edge_server")
@@ -288,14 +289,31 @@ def _run(args, soak, procs, env, port, disk):
     disk_state = "waiting" if disk else "off"
     hostile_pool, hostile_job = ThreadPoolExecutor(max_workers=1), None
     probe_pool, probe_job = ThreadPoolExecutor(max_workers=1), None
+    editor_pool, editor_job = ThreadPoolExecutor(max_workers=1), None
     while time.time() < end:
         now = time.time()
         if now >= next_["sample"]:
             soak.sample(master)
             next_["sample"] = now + SAMPLE_S
         if args.editor_rate and now >= next_["editor"]:
-            editor.step()
-            next_["editor"] = now + 1.0 / args.editor_rate
+            # On a thread of its own: a server that stops answering (a deadlock) is
+            # reported and restarted, as a watchdog would, instead of stopping the run.
+            if editor_job is None or editor_job[0].done():
+                if editor_job is not None and editor_job[0].exception() is not None:
+                    log("%6.0f s: the VO editor failed: %s" % (soak.t(),
+                                                              editor_job[0].exception()))
+                editor_job = (editor_pool.submit(editor.step), now)
+                next_["editor"] = now + 1.0 / args.editor_rate
+            elif now - editor_job[1] > HANG_S:
+                soak.hangs.append(round(soak.t(), 1))
+                soak.event("SERVER UNRESPONSIVE", what="its connect service",
+                           seconds=round(now - editor_job[1]))
+                soak.last_fault = time.time()
+                soak.server.kill9(master)
+                soak.server.start()
+                soak.expect_recovery("server restart after a hang")
+                editor_pool.shutdown(wait=False)
+                editor_pool, editor_job = ThreadPoolExecutor(max_workers=1), None
         if args.hostile_every and now >= next_["hostile"]:
             # On a thread of its own: a service that never answers must not stop the run.
             if hostile_job is None:
@@ -310,12 +328,12 @@ def _run(args, soak, procs, env, port, disk):
                                                                                got[2]))
                 hostile_job = None
                 next_["hostile"] = now + args.hostile_every
-            elif now - hostile_job[1] > HOSTILE_HANG_S:
+            elif now - hostile_job[1] > HANG_S:
                 kind = hostile.kinds[hostile.turn % len(hostile.kinds)][0]
                 hostile.turn += 1
-                hostile.record(kind, False, "no answer within %.0f s (a hang)" % HOSTILE_HANG_S)
+                hostile.record(kind, False, "no answer within %.0f s (a hang)" % HANG_S)
                 log("%6.0f s: hostile input %s: no answer within %.0f s" % (
-                    soak.t(), kind, HOSTILE_HANG_S))
+                    soak.t(), kind, HANG_S))
                 hostile_pool.shutdown(wait=False)
                 hostile_pool, hostile_job = ThreadPoolExecutor(max_workers=1), None
         if now >= next_["probe"] and (probe_job is None or probe_job.done()):
@@ -364,6 +382,7 @@ def _run(args, soak, procs, env, port, disk):
         time.sleep(0.05)
     hostile_pool.shutdown(wait=False)
     probe_pool.shutdown(wait=False)
+    editor_pool.shutdown(wait=False)
     if disk_state == "full":
         disk.free()
         soak.event("disk space back")
