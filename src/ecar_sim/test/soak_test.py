@@ -13,7 +13,9 @@ import unittest
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 from ecar_msgs.msg import InteractionResult, LocalGraph  # noqa: E402
-from ecar_sim.soak import hostile, ledger, memory, monitor, options, report  # noqa: E402
+from ecar_msgs.msg import Interaction  # noqa: E402
+from ecar_sim.soak import editor, hostile, ledger, memory, monitor, options, report  # noqa: E402
+from sensor_msgs.msg import CameraInfo  # noqa: E402
 
 
 def result(object_id, version, accepted=True, reason=""):
@@ -133,6 +135,32 @@ class GraphStatusTest(unittest.TestCase):
                          ("device_7", 1234, LocalGraph.RELOCALISED, 3))
 
 
+class RecoveryTest(unittest.TestCase):
+    def test_a_restarted_device_counts_only_its_new_frames(self):
+        mon = monitor.Monitor(["device_0"], ledger.VoLedger())
+        cb = mon._graph_cb("device_0")
+
+        class Raw:
+            def __init__(self, frame, status):
+                g = LocalGraph(device_id="device_0", frame_index=frame, status=status)
+                g.pose.orientation.w = 1.0
+                buff = io.BytesIO()
+                g.serialize(buff)
+                self._buff = buff.getvalue()
+        cb(Raw(2400, LocalGraph.OK))
+        t = mon.aligned["device_0"][-1][0]
+        self.assertEqual(mon.last_frame("device_0"), 2400)
+        cb(Raw(2404, LocalGraph.OK))  # the killed process's last upload, answered late
+        cb(Raw(8, LocalGraph.LOST))  # the new process, not aligned yet
+        cb(Raw(12, LocalGraph.RELOCALISED))
+        self.assertEqual(mon.graphs["device_0"], 4)
+        got = mon.first_aligned_after("device_0", t - 1e-6, below=2400)
+        self.assertEqual(got, mon.aligned["device_0"][-1][0])
+        self.assertEqual(mon.first_aligned_after("device_0", t - 1e-6),
+                         mon.aligned["device_0"][0][0])
+        self.assertIsNone(mon.first_aligned_after("device_0", t + 60.0))
+
+
 class HostileTest(unittest.TestCase):
     def test_the_bomb_patch_changes_only_the_size(self):
         # SOI, an APP0 segment, SOF0 (precision 8, 480 x 640, 1 component), EOI.
@@ -150,6 +178,41 @@ class HostileTest(unittest.TestCase):
         self.assertGreaterEqual(len(kinds), 20)
         for n in kinds:
             self.assertTrue((getattr(hostile.Hostile, n).__doc__ or "").strip(), n)
+
+
+class EditorTest(unittest.TestCase):
+    """The editor's own bookkeeping from the answers (no master: nothing is sent)."""
+
+    def answer(self, ed, type_, object_id, accepted, version, reason="", session=None):
+        m = ed.interaction(type_, editor.line(0.0, 0.0), object_id, 1, session)
+        with ed.lock:
+            ed.pending[m.request_id] = (type_, object_id, m.session)
+        ed.on_result(InteractionResult(request_id=m.request_id, object_id=object_id,
+                                       accepted=accepted, version=version, reason=reason))
+
+    def test_answers_keep_its_objects_and_its_token(self):
+        import random
+        led = ledger.VoLedger()
+        ed = editor.VoEditor(CameraInfo(), led, random.Random(1))
+        ed.session = 77
+        self.answer(ed, Interaction.REGISTER, 5, True, 1)
+        self.answer(ed, Interaction.MANIPULATE, 5, True, 2)
+        self.assertEqual(ed.live, {5: 2})
+        # A delete of another device's object, refused: not one of its own.
+        self.answer(ed, Interaction.DELETE, 9, False, 4, "deleting object 9 is for its owner")
+        self.assertEqual(ed.live, {5: 2})
+        # A conflict on its own: the server's version, to try again from.
+        self.answer(ed, Interaction.MANIPULATE, 5, False, 3, "stale base_version 2: ...")
+        self.assertEqual(ed.live, {5: 3})
+        # A wrong token on purpose keeps the real one; a rejection of the real one drops it.
+        self.answer(ed, Interaction.REGISTER, 0, False, 0, "session: wrong session token",
+                    session=1234)
+        self.assertEqual(ed.session, 77)
+        self.answer(ed, Interaction.REGISTER, 0, False, 0, "session: wrong session token")
+        self.assertEqual(ed.session, 0)
+        self.answer(ed, Interaction.DELETE, 5, True, 4)
+        self.assertEqual(ed.live, {})
+        self.assertTrue(led.acked()[5].deleted)
 
 
 class OptionsTest(unittest.TestCase):

@@ -48,7 +48,7 @@ class VoEditor:
         self.answered_since_connect = False  # the server's topics reach us in this session
         self.lock = threading.Lock()
         self.live = {}  # own object id -> version
-        self.pending = {}  # request id -> (type, object id)
+        self.pending = {}  # request id -> (type, object id, session it was sent with)
         self.awaited = {}  # request id -> its result once in (send_and_wait), or None
         self.answered = threading.Condition(self.lock)
         self.next_request = 1
@@ -104,7 +104,7 @@ class VoEditor:
     def interaction(self, type_, obj, object_id=0, base_version=0, session=None):
         """An Interaction of this client with the next request id (not sent)."""
         m = Interaction()
-        m.header.stamp = rospy.Time.now()
+        m.header.stamp = rospy.Time.from_sec(time.time())  # the soak runs on wall time
         m.header.frame_id = "map"
         m.device_id = self.name
         m.session = self.session if session is None else session
@@ -118,7 +118,7 @@ class VoEditor:
         """Sends one change; its answer reaches on_result. Returns the request id."""
         m = self.interaction(type_, obj, object_id, base_version, session)
         with self.lock:
-            self.pending[m.request_id] = (type_, object_id)
+            self.pending[m.request_id] = (type_, object_id, m.session)
         self.pub.publish(m)
         return m.request_id
 
@@ -126,7 +126,7 @@ class VoEditor:
         """Sends the Interaction m (made by interaction()) and returns its InteractionResult,
         or None after timeout seconds."""
         with self.lock:
-            self.pending[m.request_id] = (m.type, m.object_id)
+            self.pending[m.request_id] = (m.type, m.object_id, m.session)
             self.awaited[m.request_id] = None
         self.pub.publish(m)
         end = time.time() + timeout
@@ -142,17 +142,19 @@ class VoEditor:
             if msg.request_id in self.awaited:
                 self.awaited[msg.request_id] = msg
                 self.answered.notify_all()
-            type_, object_id = self.pending.pop(msg.request_id, (None, msg.object_id))
+            type_, object_id, sent_with = self.pending.pop(msg.request_id,
+                                                           (None, msg.object_id, None))
             if msg.accepted:
                 if type_ == Interaction.DELETE:
                     self.live.pop(msg.object_id, None)
                 elif type_ is not None:
                     self.live[msg.object_id] = msg.version
-            elif type_ in (Interaction.MANIPULATE, Interaction.DELETE):
+            elif type_ in (Interaction.MANIPULATE, Interaction.DELETE) and \
+                    object_id in self.live:  # (not another device's, tried on purpose)
                 if msg.version:
                     self.live[object_id] = msg.version  # the server's: try again from there
                 if "unknown" in msg.reason or "deleted" in msg.reason:
                     self.live.pop(object_id, None)
-            if "session" in msg.reason:
-                self.session = 0  # a restarted server: connect again
+            if "session" in msg.reason and sent_with == self.session:
+                self.session = 0  # a restarted server: connect again (not a wrong token on purpose)
         self.ledger.on_result(self.name, msg, deleted=type_ == Interaction.DELETE)

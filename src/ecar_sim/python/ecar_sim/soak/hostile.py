@@ -21,7 +21,7 @@ from rosgraph_msgs.msg import Log
 
 from ecar_sim.soak.editor import line
 
-ANSWER_TIMEOUT_S = 5.0  # a service or an interaction must answer within this
+ANSWER_TIMEOUT_S = 10.0  # a service or an interaction must answer within this
 WARN_WAIT_S = 2.5  # an upload's warning must appear on /rosout within this (unless throttled)
 Context = collections.namedtuple(
     "Context", "editor devices map_dir database jpeg device_objects")

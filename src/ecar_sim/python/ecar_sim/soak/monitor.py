@@ -35,7 +35,7 @@ class Monitor:
     def __init__(self, devices, ledger):
         self.lock = threading.Lock()
         self.ledger = ledger
-        self.aligned = {d: [] for d in devices}  # wall times of aligned graphs (bounded)
+        self.aligned = {d: [] for d in devices}  # (wall time, frame) of aligned graphs, bounded
         self.graphs = {d: 0 for d in devices}
         self.registered = {}  # object id -> version, of the devices' accepted results
         self.subs = []
@@ -48,14 +48,14 @@ class Monitor:
     def _graph_cb(self, device):
         def cb(msg):
             try:
-                _, _, status, _ = graph_status(msg._buff)
+                _, frame, status, _ = graph_status(msg._buff)
             except (struct.error, IndexError):
                 return
             with self.lock:
                 self.graphs[device] += 1
                 if status in ALIGNED:
                     times = self.aligned[device]
-                    times.append(time.time())
+                    times.append((time.time(), frame))
                     if len(times) > 4000:
                         del times[:2000]
         return cb
@@ -68,10 +68,18 @@ class Monitor:
                     self.registered[msg.object_id] = msg.version
         return cb
 
-    def first_aligned_after(self, device, t):
-        """Wall time of the device's first aligned graph after t, or None."""
+    def first_aligned_after(self, device, t, below=None):
+        """Wall time of the device's first aligned graph after t (with a frame number below
+        `below` when given: a restarted device numbers its frames from its dataset's start
+        again, so a graph answering an upload of the killed process does not count), or None."""
         with self.lock:
-            return next((a for a in self.aligned[device] if a > t), None)
+            return next((a for a, f in self.aligned[device]
+                         if a > t and (below is None or f < below)), None)
+
+    def last_frame(self, device):
+        """The frame number of the device's last aligned graph (None before the first)."""
+        with self.lock:
+            return self.aligned[device][-1][1] if self.aligned[device] else None
 
     def device_objects(self):
         """{object id: newest acknowledged version} of the devices' own changes."""

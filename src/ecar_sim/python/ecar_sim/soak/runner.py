@@ -39,6 +39,7 @@ SAMPLE_S = 2.0  # between memory samples
 PROGRESS_S = 30.0
 CONNECT_TIMEOUT_S = 60.0
 DISK_MB = 512  # the database's tmpfs when not full
+SETTLE_S = 15.0  # after a fault, hostile inputs are sent but not judged for this long
 HANG_S = 30.0  # a service call of the soak without an answer this long: the server hangs
 MAP_PROBE_S = 60.0  # between save_maps that count the map (keyframes, points, objects)
 
@@ -144,16 +145,17 @@ class Soak:
         log("%6.0f s: %s %s" % (e["t"], kind, " ".join(
             "%s=%s" % kv for kv in fields.items())))
 
-    def expect_recovery(self, label):
-        """Every device must receive an aligned graph after now (checked in poll_recoveries)."""
-        self.pending.append((label, time.time(), {d: None for d in self.devices}))
+    def expect_recovery(self, label, below=None):
+        """Every device must receive an aligned graph after now (checked in poll_recoveries);
+        below: {device: frame number} its graph's frame must be under (a restarted device)."""
+        self.pending.append((label, time.time(), {d: None for d in self.devices}, below or {}))
 
     def poll_recoveries(self, monitor, final=False):
         """Moves recovered (or timed out, or at the end unfinished) devices to recoveries."""
         still = []
-        for label, t0, waiting in self.pending:
+        for label, t0, waiting, below in self.pending:
             for d in list(waiting):
-                got = monitor.first_aligned_after(d, t0)
+                got = monitor.first_aligned_after(d, t0, below.get(d))
                 timed_out = time.time() - t0 > self.args.recover_timeout
                 if got is not None or timed_out or final:
                     self.recoveries.append({"fault": label, "t": round(t0 - self.start_t, 1),
@@ -162,7 +164,7 @@ class Soak:
                                             round(got - t0, 2)})
                     del waiting[d]
             if waiting:
-                still.append((label, t0, waiting))
+                still.append((label, t0, waiting, below))
         self.pending = still
 
     def check_database(self, ledger, when):
@@ -320,8 +322,9 @@ def _run(args, soak, procs, env, port, disk):
                 hostile_job = (hostile_pool.submit(hostile.next), now)
             elif hostile_job[0].done():
                 got = hostile_job[0].result()
-                # A kill of the server while it waited for the answer says nothing.
-                if got and soak.last_fault < hostile_job[1]:
+                # An input sent while the server restarted says nothing (in the first
+                # seconds after a restart an answer can stay away: see the README).
+                if got and soak.last_fault < hostile_job[1] - SETTLE_S:
                     hostile.record(*got)
                     if not got[1]:
                         log("%6.0f s: hostile input %s NOT refused: %s" % (soak.t(), got[0],
@@ -355,7 +358,8 @@ def _run(args, soak, procs, env, port, disk):
             killed = soak.light.kill9(master)
             soak.event("devices killed", life=soak.light.life, nodes=len(killed))
             soak.light.start()
-            soak.expect_recovery("devices restart %d" % (soak.light.life - 1))
+            soak.expect_recovery("devices restart %d" % (soak.light.life - 1),
+                                 below={d: monitor.last_frame(d) for d in soak.devices})
             next_["devices"] = time.time() + args.restart_devices_every
         if disk_state == "waiting" and now >= disk_at:
             used = disk.fill()
