@@ -46,7 +46,14 @@ void Device::applyTouch(const ecar::Touch& touch, const ros::Time& stamp) {
     return;
   }
   requests_.clear();
-  objects_.touch(touch, *T_w_c_, *camera_, &requests_);
+  if (objects_.touch(touch, *T_w_c_, *camera_, &requests_) == ecar::TouchOutcome::kMissed) {
+    // The user sees nothing happen: say why (the planes come with the local graphs).
+    ROS_WARN_THROTTLE(kWarnPeriod,
+                      "%s: touch at (%.0f, %.0f) px hits none of the %zu planes and %zu objects "
+                      "held within %.0f m: nothing drawn",
+                      id, touch.uv.x(), touch.uv.y(), objects_.planeCount(),
+                      objects_.objects().size(), objects_.config().max_distance);
+  }
   std_msgs::Header header;
   header.stamp = stamp;
   header.frame_id = config_.map_frame;

@@ -26,7 +26,8 @@ import numpy as np
 import rospy
 import rostest
 import yaml
-from ecar_msgs.msg import DeviceFrame, InteractionResult, LocalGraph, VirtualObject
+from ecar_msgs.msg import DeviceFrame, InteractionResult, LocalGraph, Plane, VirtualObject
+from rosgraph_msgs.msg import Log
 from ecar_sim import ground_truth
 from ecar_sim import vo_metrics as vm
 from ecar_sim.alignment import Similarity, umeyama
@@ -34,6 +35,8 @@ from ecar_sim.playback import Playback
 
 PKG = "ecar_sim"
 DEVICES = ["drawer", "receiver"]
+# The first frame of the drawer's wall stroke (vo_far_scene.yaml).
+WALL_TOUCH_FRAME = 316
 
 
 class VoSharingTest(unittest.TestCase):
@@ -49,6 +52,12 @@ class VoSharingTest(unittest.TestCase):
         self.graph_walls = {d: [] for d in DEVICES}
         self.objects = []
         self.results = []
+        # What the drawer held of the walls when it touched them, for the failure message:
+        # its planes by id (applied from its graphs as the device applies them), and per graph
+        # frame the walls' boundaries in the map.
+        self.drawer_planes = {}
+        self.drawer_walls = []  # (frame_index, [boundary as an Nx3 array])
+        self.drawer_log = []  # the drawer device's warnings and errors (/rosout)
 
     def tearDown(self):
         self.playback.close()
@@ -65,10 +74,45 @@ class VoSharingTest(unittest.TestCase):
     def on_graph(self, m, device):
         with self.lock:
             self.graph_walls[device].append(time.time())
+            if device == "drawer":
+                self.note_drawer_planes(m)
             if m.status in (LocalGraph.OK, LocalGraph.RELOCALISED):
                 p = m.pose.position
                 self.server[device][m.frame_index] = np.array([p.x, p.y, p.z])
             self.playback.activity()
+
+    def note_drawer_planes(self, m):
+        for plane_id in m.removed_planes:
+            self.drawer_planes.pop(plane_id, None)
+        for p in m.planes:
+            held = self.drawer_planes.get(p.id)
+            if held is None or p.version > held.version:
+                self.drawer_planes[p.id] = p
+        walls = [np.array([(b.x, b.y, b.z) for b in p.boundary])
+                 for p in self.drawer_planes.values() if p.label == Plane.WALL and p.boundary]
+        self.drawer_walls.append((m.frame_index, walls))
+
+    def on_log(self, m):
+        if "drawer" in m.name and m.level >= Log.WARN:
+            with self.lock:
+                self.drawer_log.append(m.msg)
+
+    def why_no_wall_vo(self, sim):
+        """What the drawer held and said around its wall stroke: the walls' extent along the
+        corridor (world x; the stroke is at x = 16.5 on the y = 2.4 wall) in its last graph
+        before the stroke, its status on the stroke's frames, and its warnings."""
+        before = [w for f, w in self.drawer_walls if f <= WALL_TOUCH_FRAME]
+        walls = []
+        for boundary in (before[-1] if before else []):
+            world = np.array([sim.apply(b) for b in boundary])
+            walls.append("y %.2f: x %.2f..%.2f" % (np.median(world[:, 1]), world[:, 0].min(),
+                                                   world[:, 0].max()))
+        frames = self.device_frames["drawer"]
+        statuses = [frames[f][1] if f in frames else None
+                    for f in range(WALL_TOUCH_FRAME, WALL_TOUCH_FRAME + 9)]
+        return ("the drawer's walls before frame %d: %s; its statuses on frames %d+: %s; "
+                "its warnings: %s" % (WALL_TOUCH_FRAME, walls or "none", WALL_TOUCH_FRAME,
+                                      statuses, self.drawer_log[-10:] or "none"))
 
     def on_object(self, m):
         with self.lock:
@@ -85,6 +129,7 @@ class VoSharingTest(unittest.TestCase):
         rospy.Subscriber("/ecar/objects", VirtualObject, self.on_object, queue_size=1000)
         rospy.Subscriber("/drawer/interaction_result", InteractionResult, self.on_result,
                          queue_size=1000)
+        rospy.Subscriber("/rosout_agg", Log, self.on_log, queue_size=1000)
         for d in DEVICES:
             rospy.Subscriber("/%s/device_frame" % d, DeviceFrame, self.on_frame, queue_size=500)
             rospy.Subscriber("/%s/local_graph" % d, LocalGraph, self.on_graph, callback_args=d,
@@ -130,8 +175,10 @@ class VoSharingTest(unittest.TestCase):
                 self.assertLess(abs(p[1] - 2.4), 0.05, "wall VO %d at %s" % (m.id, p))
                 self.assertLess(abs(p[0] - 16.5), 0.25, "wall VO %d at %s" % (m.id, p))
                 self.assertTrue(0.8 < p[2] < 1.6, "wall VO %d at %s" % (m.id, p))
+        rospy.loginfo("VOs: %d on the floor, %d on the wall; %s", floor, wall,
+                      self.why_no_wall_vo(sim))
         self.assertGreater(floor, 5, "VOs on the floor: %d" % floor)
-        self.assertGreater(wall, 3, "VOs on the wall: %d" % wall)
+        self.assertGreater(wall, 3, "VOs on the wall: %d (%s)" % (wall, self.why_no_wall_vo(sim)))
 
         # The receiver held them while far away.
         states = [vm.VoState(m.id, m.version, m.deleted, m.owner, m.kind,

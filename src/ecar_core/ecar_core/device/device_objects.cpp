@@ -265,8 +265,8 @@ void DeviceObjects::sendSegment(const Eigen::Vector3d& a, const Eigen::Vector3d&
   out->push_back(std::move(req));
 }
 
-void DeviceObjects::touch(const Touch& touch, const SE3& T_w_c, const PinholeCamera& camera,
-                          std::vector<VoRequest>* out) {
+TouchOutcome DeviceObjects::touch(const Touch& touch, const SE3& T_w_c, const PinholeCamera& camera,
+                                  std::vector<VoRequest>* out) {
   const Eigen::Vector3d o = T_w_c.translation();
   const Eigen::Vector3d dir = (T_w_c.linear() * camera.unproject(touch.uv)).normalized();
 
@@ -278,7 +278,7 @@ void DeviceObjects::touch(const Touch& touch, const SE3& T_w_c, const PinholeCam
     stroke_.active = false;
     grab_.active = false;
     const auto hit = cast(touch.uv, T_w_c, camera);
-    if (!hit) return;
+    if (!hit) return TouchOutcome::kMissed;
     if (hit->object.valid()) {
       const VirtualObject& vo = objects_.at(hit->object);
       const Eigen::Vector3d n = vo.normal.normalized();
@@ -299,15 +299,15 @@ void DeviceObjects::touch(const Touch& touch, const SE3& T_w_c, const PinholeCam
       stroke_.g = touch.g;
       stroke_.b = touch.b;
       stroke_.width = static_cast<float>(touch.width);
-      return;
+      return TouchOutcome::kStroke;
     }
   }
 
   if (grab_.active) {
     auto held = objects_.find(grab_.id);
-    if (held == objects_.end()) {
+    if (held == objects_.end()) {  // deleted meanwhile
       grab_.active = false;
-      return;
+      return TouchOutcome::kIgnored;
     }
     VirtualObject moved = grab_.original;
     moved.version = held->second.version;
@@ -332,10 +332,10 @@ void DeviceObjects::touch(const Touch& touch, const SE3& T_w_c, const PinholeCam
     capSize(&manipulating_, kMaxUnanswered);
     out->push_back(std::move(req));
     if (touch.phase == TouchPhase::kEnd) grab_.active = false;
-    return;
+    return TouchOutcome::kGrab;
   }
 
-  if (!stroke_.active) return;
+  if (!stroke_.active) return TouchOutcome::kIgnored;
   const auto p = hitInfinitePlane(o, dir, stroke_.normal, stroke_.offset, config_.max_distance);
   if (p) {
     stroke_.travelled += (*p - stroke_.last).norm();
@@ -353,6 +353,7 @@ void DeviceObjects::touch(const Touch& touch, const SE3& T_w_c, const PinholeCam
     }
     stroke_.active = false;
   }
+  return TouchOutcome::kStroke;
 }
 
 void DeviceObjects::drawList(const SE3& T_w_c, const PinholeCamera& camera,

@@ -90,6 +90,14 @@ std::optional<ScreenLine> projectSegment(const SE3& T_w_c, const PinholeCamera& 
 double raySegmentDistance(const Eigen::Vector3d& o, const Eigen::Vector3d& d,
                           const Eigen::Vector3d& a, const Eigen::Vector3d& b, double* s_ray);
 
+/// What one touch did (DeviceObjects::touch).
+enum class TouchOutcome {
+  kStroke,   ///< began or went on with a stroke on a held plane
+  kGrab,     ///< began or went on moving a held VO
+  kMissed,   ///< a BEGIN whose ray hits no held plane or VO within max_distance
+  kIgnored,  ///< a MOVE / END with no stroke or grab open
+};
+
 class DeviceObjects {
  public:
   /// `owner` names the device in the VOs it registers. Throws ecar::Error when
@@ -115,9 +123,13 @@ class DeviceObjects {
 
   /// Handles one touch with the camera at T_w_c; appends the interactions to
   /// send to *out (request ids counting up from 1). A touch that hits nothing
-  /// (BEGIN) or continues no stroke or grab (MOVE / END) sends nothing.
-  void touch(const Touch& touch, const SE3& T_w_c, const PinholeCamera& camera,
-             std::vector<VoRequest>* out);
+  /// (BEGIN: kMissed) or continues no stroke or grab (MOVE / END: kIgnored)
+  /// sends nothing.
+  TouchOutcome touch(const Touch& touch, const SE3& T_w_c, const PinholeCamera& camera,
+                     std::vector<VoRequest>* out);
+
+  /// Planes held (from the local graphs), for messages.
+  size_t planeCount() const { return planes_.size(); }
 
   /// The hit of the pixel's ray: a held VO (object set) when the ray passes
   /// within half its width + pick_radius of it before the first plane hit (+

@@ -132,13 +132,15 @@ TEST(DeviceObjects, StrokeBecomesChainedLinesOnTheFloor) {
   const SE3 T = floorPose();
   const PinholeCamera cam = testCamera();
   std::vector<VoRequest> out;
-  objects.touch(touchAt(T, {0, 3, 0}, TouchPhase::kBegin), T, cam, &out);
+  EXPECT_EQ(objects.touch(touchAt(T, {0, 3, 0}, TouchPhase::kBegin), T, cam, &out),
+            TouchOutcome::kStroke);
   EXPECT_TRUE(out.empty());
   EXPECT_TRUE(objects.stroking());
   for (int k = 1; k <= 10; ++k) {
     objects.touch(touchAt(T, {0.02 * k, 3, 0}, TouchPhase::kMove), T, cam, &out);
   }
-  objects.touch(touchAt(T, {0.2, 3, 0}, TouchPhase::kEnd), T, cam, &out);
+  EXPECT_EQ(objects.touch(touchAt(T, {0.2, 3, 0}, TouchPhase::kEnd), T, cam, &out),
+            TouchOutcome::kStroke);
   EXPECT_FALSE(objects.stroking());
   // Segments every 0.06 m (first step past 0.05), the rest at END: 4 lines.
   ASSERT_EQ(out.size(), 4u);
@@ -222,6 +224,43 @@ TEST(DeviceObjects, GrabbedObjectMovesAlongItsPlane) {
   // An older server state (an earlier step of the drag) does not move it back.
   objects.applyGraph({}, {line(5, 5, {0.25, 3.25, 0}, {0.45, 3.25, 0})});
   EXPECT_LT((objects.object(ObjectId(5))->start - moved.start).norm(), 1e-12);
+}
+
+TEST(DeviceObjects, TouchOnNothingIsMissedAndItsMovesIgnored) {
+  DeviceObjects objects(DeviceObjectsConfig(), "device_0");
+  const SE3 T = floorPose();
+  const PinholeCamera cam = testCamera();
+  std::vector<VoRequest> out;
+  // No plane held yet: the stroke's BEGIN misses, its MOVE and END do nothing.
+  EXPECT_EQ(objects.touch(touchAt(T, {0, 3, 0}, TouchPhase::kBegin), T, cam, &out),
+            TouchOutcome::kMissed);
+  EXPECT_EQ(objects.touch(touchAt(T, {0.1, 3, 0}, TouchPhase::kMove), T, cam, &out),
+            TouchOutcome::kIgnored);
+  EXPECT_EQ(objects.touch(touchAt(T, {0.2, 3, 0}, TouchPhase::kEnd), T, cam, &out),
+            TouchOutcome::kIgnored);
+  EXPECT_TRUE(out.empty());
+  EXPECT_FALSE(objects.stroking());
+  // With the floor held, the same BEGIN starts a stroke; one above the horizon misses.
+  objects.applyGraph({floorPlane()}, {});
+  EXPECT_EQ(objects.planeCount(), 1u);
+  EXPECT_EQ(objects.touch(touchAt(T, {0, 3, 0}, TouchPhase::kBegin), T, cam, &out),
+            TouchOutcome::kStroke);
+  Touch sky = touchAt(T, {0, 3, 0}, TouchPhase::kBegin);
+  sky.uv = Eigen::Vector2d(320, 5);
+  EXPECT_EQ(objects.touch(sky, T, cam, &out), TouchOutcome::kMissed);
+}
+
+TEST(DeviceObjects, GrabbingAVoIsAGrab) {
+  DeviceObjects objects(DeviceObjectsConfig(), "device_0");
+  objects.applyGraph({floorPlane()}, {line(5, 3, {0, 3, 0}, {0.2, 3, 0})});
+  const SE3 T = floorPose();
+  const PinholeCamera cam = testCamera();
+  std::vector<VoRequest> out;
+  EXPECT_EQ(objects.touch(touchAt(T, {0.1, 3, 0}, TouchPhase::kBegin), T, cam, &out),
+            TouchOutcome::kGrab);
+  EXPECT_EQ(objects.touch(touchAt(T, {0.1, 4, 0}, TouchPhase::kEnd), T, cam, &out),
+            TouchOutcome::kGrab);
+  EXPECT_EQ(out.size(), 2u);
 }
 
 TEST(DeviceObjects, RejectedMoveYieldsToTheServersState) {
