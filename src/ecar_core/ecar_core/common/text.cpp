@@ -44,4 +44,6 @@ std::vector<std::string> splitWhitespace(const std::string& line) {
   return fields;
 }
 
+std::string quote(const std::string& s) { return "'" + s + "'"; }
+
 }  // namespace ecar

@@ -11,6 +11,9 @@ namespace ecar {
 /// out of range come back as +-HUGE_VAL (non-finite: callers report them).
 bool parseDouble(const std::string& text, double* value);
 
+/// s in single quotes, for error messages: 's'.
+std::string quote(const std::string& s);
+
 /// Splits a line at runs of whitespace.
 std::vector<std::string> splitWhitespace(const std::string& line);
 

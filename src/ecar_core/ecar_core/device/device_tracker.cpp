@@ -6,6 +6,7 @@
 #include <string>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/math.h"
 #include "ecar_core/common/timing.h"
 
 namespace ecar {
@@ -13,8 +14,6 @@ namespace {
 
 /// Size of a received keypoint (ORB's patch diameter; the wire does not carry it).
 constexpr float kKeypointSize = 31.0f;
-
-bool finitePositive(double x) { return std::isfinite(x) && x > 0.0; }
 
 /// `velocity` (per frame) applied `frames` times.
 SE3 scaledMotion(const SE3& velocity, double frames) {

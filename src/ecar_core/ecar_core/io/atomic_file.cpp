@@ -9,14 +9,13 @@
 #include <filesystem>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/text.h"
 #include "ecar_core/io/safe_file.h"
 
 namespace ecar {
 namespace {
 
 std::string errnoText() { return std::strerror(errno); }
-
-std::string quoted(const std::string& s) { return "'" + s + "'"; }
 
 // Writes all of `bytes` to the open descriptor `fd`.
 bool writeAll(int fd, const std::vector<uint8_t>& bytes) {
@@ -43,23 +42,23 @@ void writeFileAtomically(const std::string& path, const std::vector<uint8_t>& by
   // through.
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
   if (fd < 0) {
-    throw Error(what + ": cannot create its temporary file " + quoted(tmp) + ": " + errnoText());
+    throw Error(what + ": cannot create its temporary file " + quote(tmp) + ": " + errnoText());
   }
   if (!writeAll(fd, bytes) || ::fsync(fd) != 0) {
     const std::string why = errnoText();
     ::close(fd);
     ::unlink(tmp.c_str());
-    throw Error(what + ": writing " + quoted(tmp) + " failed: " + why);
+    throw Error(what + ": writing " + quote(tmp) + " failed: " + why);
   }
   if (::close(fd) != 0) {
     const std::string why = errnoText();
     ::unlink(tmp.c_str());
-    throw Error(what + ": closing " + quoted(tmp) + " failed: " + why);
+    throw Error(what + ": closing " + quote(tmp) + " failed: " + why);
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
     const std::string why = errnoText();
     ::unlink(tmp.c_str());
-    throw Error(what + ": cannot rename " + quoted(tmp) + " to it: " + why);
+    throw Error(what + ": cannot rename " + quote(tmp) + " to it: " + why);
   }
   // The rename itself reaches the disk with its directory.
   std::string dir = std::filesystem::path(path).parent_path().string();

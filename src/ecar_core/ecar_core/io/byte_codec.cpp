@@ -6,13 +6,9 @@
 #include <zlib.h>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/text.h"
 
 namespace ecar {
-namespace {
-
-std::string quoted(const std::string& s) { return "'" + s + "'"; }
-
-}  // namespace
 
 uint32_t crc32(const void* data, size_t size, uint32_t crc) {
   // zlib's crc32 takes at most UInt (32-bit) lengths per call.
@@ -75,7 +71,7 @@ ByteReader::ByteReader(const uint8_t* data, size_t size, std::string context,
 void ByteReader::fail(const std::string& field, const std::string& problem) const {
   std::string where = context_;
   if (!scope_.empty()) where += ", " + scope_;
-  throw Error(where + ", field " + quoted(field) + " at byte " + std::to_string(offset_) + ": " +
+  throw Error(where + ", field " + quote(field) + " at byte " + std::to_string(offset_) + ": " +
               problem);
 }
 

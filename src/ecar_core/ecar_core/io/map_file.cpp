@@ -9,6 +9,7 @@
 #include <set>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/text.h"
 #include "ecar_core/io/atomic_file.h"
 #include "ecar_core/io/safe_file.h"
 
@@ -17,8 +18,6 @@ namespace {
 
 constexpr std::array<uint8_t, 8> kMagic = {'E', 'C', 'A', 'R', 'M', 'A', 'P', 0};
 constexpr uint32_t kMaxSections = 4096;
-
-std::string quoted(const std::string& s) { return "'" + s + "'"; }
 
 bool validSectionName(const std::string& name) {
   if (name.empty() || name.size() > 255) return false;
@@ -34,12 +33,11 @@ bool validSectionName(const std::string& name) {
 
 void MapFileWriter::addSection(const std::string& name, std::vector<uint8_t> bytes) {
   if (!validSectionName(name)) {
-    throw Error("MapFileWriter::addSection: invalid section name " + quoted(name) +
+    throw Error("MapFileWriter::addSection: invalid section name " + quote(name) +
                 " (1..255 printable ASCII characters)");
   }
   for (const auto& s : sections_) {
-    if (s.first == name)
-      throw Error("MapFileWriter::addSection: duplicate section " + quoted(name));
+    if (s.first == name) throw Error("MapFileWriter::addSection: duplicate section " + quote(name));
   }
   sections_.emplace_back(name, std::move(bytes));
 }
@@ -68,7 +66,7 @@ std::vector<uint8_t> MapFileWriter::serialize() const {
 }
 
 void MapFileWriter::write(const std::string& path) const {
-  writeFileAtomically(path, serialize(), "map file " + quoted(path));
+  writeFileAtomically(path, serialize(), "map file " + quote(path));
 }
 
 // ---------------------------------------------------------------- MapFileReader
@@ -83,7 +81,7 @@ MapFileReader MapFileReader::parse(std::vector<uint8_t> bytes, const std::string
   auto shared = std::make_shared<const std::vector<uint8_t>>(std::move(bytes));
   file.bytes_ = shared;
   const std::vector<uint8_t>& data = *shared;
-  const std::string where = "map file " + quoted(name);
+  const std::string where = "map file " + quote(name);
   if (data.size() < kMagic.size() || !std::equal(kMagic.begin(), kMagic.end(), data.begin())) {
     throw Error(where + ": not an eCAR map file (bad magic" +
                 (data.size() < kMagic.size() ? ", only " + std::to_string(data.size()) + " bytes"
@@ -124,12 +122,12 @@ MapFileReader MapFileReader::parse(std::vector<uint8_t> bytes, const std::string
   uint64_t expected = in.offset();
   for (const Entry& e : file.entries_) {
     if (e.offset != expected) {
-      throw Error(where + ", section " + quoted(e.name) + ": starts at byte " +
+      throw Error(where + ", section " + quote(e.name) + ": starts at byte " +
                   std::to_string(e.offset) + ", expected " + std::to_string(expected) +
                   " (corrupted header)");
     }
     if (e.size > data.size() || e.offset > data.size() - e.size) {
-      throw Error(where + ", section " + quoted(e.name) + ": truncated (" + std::to_string(e.size) +
+      throw Error(where + ", section " + quote(e.name) + ": truncated (" + std::to_string(e.size) +
                   " bytes from byte " + std::to_string(e.offset) + ", the file has " +
                   std::to_string(data.size()) + ")");
     }
@@ -160,18 +158,18 @@ const MapFileReader::Entry& MapFileReader::checked(const std::string& section) c
     if (e.name != section) continue;
     const uint32_t crc = crc32(bytes_->data() + e.offset, e.size);
     if (crc != e.crc) {
-      throw Error("map file " + quoted(name_) + ", section " + quoted(section) +
+      throw Error("map file " + quote(name_) + ", section " + quote(section) +
                   ": CRC mismatch (the section is corrupted)");
     }
     return e;
   }
-  throw Error("map file " + quoted(name_) + ": no section " + quoted(section));
+  throw Error("map file " + quote(name_) + ": no section " + quote(section));
 }
 
 ByteReader MapFileReader::reader(const std::string& section) const {
   const Entry& e = checked(section);
   return ByteReader(bytes_->data() + e.offset, e.size,
-                    "map file " + quoted(name_) + ", section " + quoted(section), bytes_);
+                    "map file " + quote(name_) + ", section " + quote(section), bytes_);
 }
 
 std::vector<uint8_t> MapFileReader::section(const std::string& section) const {

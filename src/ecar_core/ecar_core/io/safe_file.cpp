@@ -10,13 +10,12 @@
 #include <system_error>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/text.h"
 
 namespace ecar {
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string quoted(const std::string& s) { return "'" + s + "'"; }
 
 std::string errnoText(int error) { return std::strerror(error); }
 
@@ -42,7 +41,7 @@ struct FdCloser {
 
 std::vector<uint8_t> readRegularFile(const std::string& path, size_t max_bytes,
                                      const std::string& what) {
-  const std::string where = what + " " + quoted(path);
+  const std::string where = what + " " + quote(path);
   const int fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
   if (fd < 0) {
     const int error = errno;
@@ -75,7 +74,7 @@ void checkReplaceable(const std::string& path, const std::string& what) {
   struct stat st {};
   if (::lstat(path.c_str(), &st) != 0) return;  // absent (or unreachable: the write says why)
   if (!S_ISREG(st.st_mode)) {
-    throw Error(what + " " + quoted(path) + ": is " + kindOf(st.st_mode) +
+    throw Error(what + " " + quote(path) + ": is " + kindOf(st.st_mode) +
                 ", not a file: not replaced");
   }
 }
@@ -84,23 +83,23 @@ MapFolder::MapFolder(const std::string& folder) {
   if (folder.empty()) throw Error("map folder: the path is empty");
   std::error_code ec;
   const fs::path absolute = fs::absolute(fs::path(folder), ec).lexically_normal();
-  if (ec) throw Error("map folder " + quoted(folder) + ": " + ec.message());
+  if (ec) throw Error("map folder " + quote(folder) + ": " + ec.message());
   configured_ = absolute.string();
   while (configured_.size() > 1 && configured_.back() == '/') configured_.pop_back();
   if (!fs::exists(absolute, ec)) {
     fs::create_directories(absolute, ec);
-    if (ec) throw Error("map folder " + quoted(folder) + ": cannot create it: " + ec.message());
+    if (ec) throw Error("map folder " + quote(folder) + ": cannot create it: " + ec.message());
     fs::permissions(absolute, fs::perms::owner_all, ec);
   }
   if (!fs::is_directory(absolute, ec)) {
-    throw Error("map folder " + quoted(folder) + ": is not a folder");
+    throw Error("map folder " + quote(folder) + ": is not a folder");
   }
   path_ = fs::canonical(absolute, ec).string();
-  if (ec) throw Error("map folder " + quoted(folder) + ": " + ec.message());
+  if (ec) throw Error("map folder " + quote(folder) + ": " + ec.message());
 }
 
 std::string MapFolder::resolve(const std::string& requested) const {
-  const std::string where = "map path " + quoted(requested);
+  const std::string where = "map path " + quote(requested);
   if (requested.empty())
     throw Error("map path: empty (give a file name ending in " + std::string(kExtension) + ")");
   const fs::path p(requested);
@@ -109,13 +108,13 @@ std::string MapFolder::resolve(const std::string& requested) const {
     const fs::path normal = p.lexically_normal();
     const std::string parent = normal.parent_path().string();
     if (parent != configured_ && parent != path_) {
-      throw Error(where + ": outside the map folder " + quoted(path_) +
+      throw Error(where + ": outside the map folder " + quote(path_) +
                   " (give a file name, or a path in that folder)");
     }
     name = normal.filename().string();
   } else {
     if (requested.find('/') != std::string::npos) {
-      throw Error(where + ": a file name in the map folder " + quoted(path_) +
+      throw Error(where + ": a file name in the map folder " + quote(path_) +
                   " is expected, not a subfolder or '..'");
     }
     name = requested;

@@ -15,7 +15,7 @@ namespace {
 constexpr uint32_t kSlamSectionVersion = 2;
 constexpr uint32_t kMaxCameras = 1024;
 constexpr size_t kCameraBytes = 4 + 4 + 9 * 8;
-constexpr size_t kDescriptorBytes = 32;
+constexpr size_t kDescriptorRecordBytes = 32;
 constexpr size_t kKeypointBytes = 6 * 4;  // x, y, size, angle, response, octave
 constexpr size_t kObservationBytes = 8;   // keyframe id, keypoint index
 
@@ -91,7 +91,7 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& default_
     if (f.T_o_c) out.se3(*f.T_o_c);
     const bool has_descriptors = !f.descriptors.empty();
     if (has_descriptors && (f.descriptors.rows != static_cast<int>(f.keypoints.size()) ||
-                            f.descriptors.cols != static_cast<int>(kDescriptorBytes) ||
+                            f.descriptors.cols != static_cast<int>(kDescriptorRecordBytes) ||
                             f.descriptors.type() != CV_8U)) {
       throw Error("encodeSlamMap: keyframe " + std::to_string(id.value) +
                   " has descriptors unlike its keypoints (not N x 32 CV_8U)");
@@ -108,7 +108,7 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& default_
     // Descriptors: one 32-byte row per keypoint (none when the matrix is empty).
     out.u8(has_descriptors ? 1 : 0);
     for (int r = 0; has_descriptors && r < f.descriptors.rows; ++r) {
-      out.bytes(f.descriptors.ptr<uint8_t>(r), kDescriptorBytes);
+      out.bytes(f.descriptors.ptr<uint8_t>(r), kDescriptorRecordBytes);
     }
     for (const MapPointId pid : kf.points) out.u32(pid.value);
   }
@@ -128,13 +128,13 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& default_
     out.i32(p.found);
     out.u32(p.version);
     const bool has_descriptor = !p.descriptor.empty();
-    if (has_descriptor && (p.descriptor.total() != kDescriptorBytes ||
+    if (has_descriptor && (p.descriptor.total() != kDescriptorRecordBytes ||
                            p.descriptor.type() != CV_8U || !p.descriptor.isContinuous())) {
       throw Error("encodeSlamMap: point " + std::to_string(id.value) +
                   " has a descriptor other than 1 x 32 CV_8U");
     }
     out.u8(static_cast<uint8_t>((p.bad ? 1 : 0) | (has_descriptor ? 2 : 0)));
-    if (has_descriptor) out.bytes(p.descriptor.ptr<uint8_t>(0), kDescriptorBytes);
+    if (has_descriptor) out.bytes(p.descriptor.ptr<uint8_t>(0), kDescriptorRecordBytes);
     out.u32(static_cast<uint32_t>(p.observations.size()));
     for (const auto& [kid, idx] : p.observations) {
       out.u32(kid.value);
@@ -276,12 +276,13 @@ std::unique_ptr<Map> decodeSlamMap(ByteReader in, const ScaleInfo& scale) {
     const uint8_t has_descriptors = in.u8("descriptors present");
     if (has_descriptors > 1) in.fail("descriptors present", "not 0 or 1");
     if (has_descriptors) {
-      if (n * kDescriptorBytes > in.remaining()) {
+      if (n * kDescriptorRecordBytes > in.remaining()) {
         in.fail("descriptors", "truncated (" + std::to_string(n) + " rows of 32 bytes)");
       }
-      f.descriptors.create(static_cast<int>(n), static_cast<int>(kDescriptorBytes), CV_8U);
+      f.descriptors.create(static_cast<int>(n), static_cast<int>(kDescriptorRecordBytes), CV_8U);
       for (uint32_t i = 0; i < n; ++i) {
-        in.bytes(f.descriptors.ptr<uint8_t>(static_cast<int>(i)), kDescriptorBytes, "descriptors");
+        in.bytes(f.descriptors.ptr<uint8_t>(static_cast<int>(i)), kDescriptorRecordBytes,
+                 "descriptors");
       }
     }
     kf.points.resize(n);
@@ -317,8 +318,8 @@ std::unique_ptr<Map> decodeSlamMap(ByteReader in, const ScaleInfo& scale) {
     if (flags & ~3u) in.fail("flags", "unknown flags " + std::to_string(flags));
     p.bad = (flags & 1) != 0;
     if (flags & 2) {
-      p.descriptor.create(1, static_cast<int>(kDescriptorBytes), CV_8U);
-      in.bytes(p.descriptor.ptr<uint8_t>(0), kDescriptorBytes, "descriptor");
+      p.descriptor.create(1, static_cast<int>(kDescriptorRecordBytes), CV_8U);
+      in.bytes(p.descriptor.ptr<uint8_t>(0), kDescriptorRecordBytes, "descriptor");
     }
     const uint32_t num_obs = in.count("observation count", kObservationBytes);
     for (uint32_t o = 0; o < num_obs; ++o) {

@@ -28,7 +28,6 @@ using orb_internal::kPatchSize;
 using orb_internal::OrientationDisk;
 
 constexpr int kMinImageSide = 64;
-constexpr int kDescriptorBytes = 32;
 constexpr int kMaxLevels = 32;
 
 /// 8-bit grey view of `image` (converted into *buffer when it has colour).

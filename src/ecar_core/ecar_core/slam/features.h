@@ -18,6 +18,9 @@ struct OrbConfig {
   int cell_size = 35;          ///< grid cell (px at each level) for the even spread
 };
 
+/// Bytes of one ORB descriptor (a row of the descriptor matrices, CV_8U).
+constexpr int kDescriptorBytes = 32;
+
 /// Hamming distance of two 32-byte ORB descriptors (0..256).
 int descriptorDistance(const uint8_t* a, const uint8_t* b);
 inline int descriptorDistance(const cv::Mat& a, int ia, const cv::Mat& b, int ib) {

@@ -15,8 +15,6 @@ namespace ecar {
 
 namespace {
 
-constexpr int kDescriptorBytes = 32;
-
 // Per table, `bits` distinct descriptor bit positions (as byte index and
 // mask): a partial Fisher-Yates shuffle of 0..255 (rng() % n rather than a
 // distribution, so the same on every platform).

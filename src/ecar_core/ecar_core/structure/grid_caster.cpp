@@ -6,13 +6,12 @@
 #include <string>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/math.h"
 
 namespace ecar {
 namespace {
 
 constexpr double kMinRayParameter = 1e-9;
-
-bool finitePositive(double x) { return std::isfinite(x) && x > 0.0; }
 
 }  // namespace
 

@@ -7,13 +7,10 @@
 #include <Eigen/Eigenvalues>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/math.h"
 
 namespace ecar {
 namespace {
-
-constexpr double kDegToRad = M_PI / 180.0;
-
-bool finitePositive(double x) { return std::isfinite(x) && x > 0.0; }
 
 /// Orthonormal in-plane axes (e1, e2) with e1 x e2 = n.
 void planeBasis(const Eigen::Vector3d& n, Eigen::Vector3d* e1, Eigen::Vector3d* e2) {
@@ -25,10 +22,6 @@ void planeBasis(const Eigen::Vector3d& n, Eigen::Vector3d* e1, Eigen::Vector3d* 
   }
   *e1 = n.cross(a).normalized();
   *e2 = n.cross(*e1);
-}
-
-double cross2(const Eigen::Vector2d& o, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
-  return (a - o).x() * (b - o).y() - (a - o).y() * (b - o).x();
 }
 
 /// Andrew's monotone chain: counter-clockwise hull without collinear points.

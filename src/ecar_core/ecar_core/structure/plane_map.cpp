@@ -7,15 +7,10 @@
 #include <string>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/math.h"
 
 namespace ecar {
 namespace {
-
-constexpr double kDegToRad = M_PI / 180.0;
-
-double cross2(const Eigen::Vector2d& o, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
-  return (a - o).x() * (b - o).y() - (a - o).y() * (b - o).x();
-}
 
 bool insideConvex(const std::vector<Eigen::Vector2d>& poly, const Eigen::Vector2d& p) {
   if (poly.size() < 3) return false;

@@ -5,6 +5,7 @@
 // (device/device_objects.h).
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -40,6 +41,12 @@ struct VirtualObject {
   uint32_t version = 0;  ///< 1 at registration, +1 on every accepted change
   bool deleted = false;  ///< a tombstone: the object was deleted
 };
+
+/// True when the object's position, start, end, normal and width are all finite.
+inline bool coordinatesFinite(const VirtualObject& vo) {
+  return vo.position.allFinite() && vo.start.allFinite() && vo.end.allFinite() &&
+         vo.normal.allFinite() && std::isfinite(vo.width);
+}
 
 /// How VOs reach devices.
 enum class VoAttachMode {

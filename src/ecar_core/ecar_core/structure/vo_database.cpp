@@ -20,8 +20,6 @@ constexpr const char* kFormat = "ecar_vo_store";
 constexpr int kSchemaVersion = 2;
 constexpr int kBusyTimeoutMs = 1000;
 
-bool finiteVector(const Eigen::Vector3d& v) { return v.allFinite(); }
-
 }  // namespace
 
 // The SQLite connection: schema checks, loading, one transaction per change.
@@ -326,10 +324,7 @@ class VoDatabase::Connection {
     e.last_editor = reinterpret_cast<const char*>(sqlite3_column_text(s, 23));
     e.editor_since = static_cast<uint32_t>(integer(24, 0, max_u32));
     e.vo.map = MapId(static_cast<uint32_t>(integer(25, 0, max_u32)));
-    if (!finiteVector(e.vo.position) || !finiteVector(e.vo.start) || !finiteVector(e.vo.end) ||
-        !finiteVector(e.vo.normal) || !std::isfinite(e.vo.width)) {
-      bad("a coordinate is not finite");
-    }
+    if (!coordinatesFinite(e.vo)) bad("a coordinate is not finite");
     if (e.editor_since > e.vo.version) bad("editor_since is after its version");
     return e;
   }

@@ -14,8 +14,6 @@ namespace ecar {
 
 namespace {
 
-bool finiteVector(const Eigen::Vector3d& v) { return v.allFinite(); }
-
 std::string str(const Eigen::Vector3d& v) {
   std::ostringstream os;
   os << "(" << v.x() << ", " << v.y() << ", " << v.z() << ")";
@@ -65,7 +63,7 @@ VoReject VoStore::check(VirtualObject* vo, std::string* reason) const {
                                                                     {"end", &vo->end},
                                                                     {"normal", &vo->normal}};
   for (const auto& [name, v] : vectors) {
-    if (!finiteVector(*v)) {
+    if (!v->allFinite()) {
       *reason = std::string(name) + " is not finite " + str(*v);
       return VoReject::kNotFinite;
     }
@@ -427,8 +425,7 @@ void checkVoSnapshot(const VoSnapshot& snapshot, const std::string& context) {
     }
     if (vo.kind != VoKind::kLine && vo.kind != VoKind::kAnchor)
       throw Error(what + ": unknown kind");
-    if (!finiteVector(vo.position) || !finiteVector(vo.start) || !finiteVector(vo.end) ||
-        !finiteVector(vo.normal) || !std::isfinite(vo.width)) {
+    if (!coordinatesFinite(vo)) {
       throw Error(what + ": a coordinate, the normal or the width is not finite");
     }
     if (vo.version < 1) throw Error(what + ": version 0");

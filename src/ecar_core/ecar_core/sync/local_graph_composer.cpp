@@ -5,13 +5,10 @@
 #include <string>
 
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/math.h"
 
 namespace ecar {
 namespace {
-
-constexpr double kDegToRad = M_PI / 180.0;
-
-bool finiteNonNegative(double x) { return std::isfinite(x) && x >= 0.0; }
 
 ObjectId idOf(const VirtualObject& vo) { return vo.id; }
 ObjectId idOf(ObjectId id) { return id; }

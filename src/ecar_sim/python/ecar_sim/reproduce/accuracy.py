@@ -68,7 +68,7 @@ def run_quality(root, out, quick):
     qualities = [100, 50, 10] if quick else list(range(100, 0, -10))
     sequences = []
     for name, scene, device in E4_SEQUENCES[:1] if quick else E4_SEQUENCES:
-        frames = 400 if quick else 0
+        frames = 240 if quick else 0
         sequences.append((name, synthetic_dataset(root, scene, device), 4, frames))
     kitti = os.path.join(shared_data(root), KITTI)
     if os.path.isdir(kitti):
@@ -108,8 +108,8 @@ def session_point(root, out, sequence, scene, device, mode, frames):
 
 def run_device_accuracy(root, out, quick):
     """E5: each sequence in each sync mode; returns the rows (also in e5_device_vs_server.csv)."""
-    sequences = E5_SEQUENCES[::2] if quick else E5_SEQUENCES
-    frames = 200 if quick else 0
+    sequences = E5_SEQUENCES[:1] if quick else E5_SEQUENCES
+    frames = 150 if quick else 0
     rows = [session_point(root, out, name, scene, device, mode, frames)
             for name, scene, device in sequences for mode in ("ecar", "edgeslam")]
     write_rows(os.path.join(out, "e5_device_vs_server.csv"), E5_FIELDS, rows)

@@ -28,13 +28,13 @@ FIELDS = ["mode", "devices", "latency_ms_median", "latency_ms_p95", "latency_sca
 
 def counts(quick):
     """The numbers of devices of the sweep."""
-    return [1, 5] if quick else [1, 2, 5, 10, 15, 20]
+    return [1, 3] if quick else [1, 2, 5, 10, 15, 20]
 
 
 def settings(quick):
     """Frames per device, playback rate (time scale) and JPEG quality of the sweep's sessions.
     device_0's strokes (frames 95-118 of the corridor scene) are in every session."""
-    return (120, 0.25, 70) if quick else (300, 0.25, 70)
+    return (120, 0.5, 70) if quick else (300, 0.25, 70)
 
 
 def run_point(root, out, mode, devices, frames, rate, quality, vo_share="graph"):
