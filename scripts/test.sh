@@ -33,20 +33,32 @@ if [[ "${1:-}" == "--sanitize" || "${1:-}" == "--sanitize-quick" ]]; then
   ASAN_OPTIONS=detect_leaks=1:strict_string_checks=1:detect_stack_use_after_return=1 \
   UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   GTEST_OUTPUT="xml:$ROOT/build/test_results/sanitize/" \
-    ctest --test-dir build_sanitize --output-on-failure "${skip[@]}"
+    ctest --test-dir build_sanitize --output-on-failure -j"$(nproc)" "${skip[@]}"
   exit $?
 fi
 
-echo "[test] building and running the package tests (catkin_make tests, then run_tests)"
+echo "[test] building and running the package tests (catkin's run_tests targets)"
 rm -rf build/test_results
-cmake_args=(-DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3)
-# The test programs are built in parallel and run one at a time: two end-to-end tests
-# sharing the 2 cores play their devices in less than real time, each slowing the other
-# (the rostests measure a live system: poses, VOs received, latencies).
-{ catkin_make tests "${cmake_args[@]}" -j"$(nproc)" && catkin_make run_tests "${cmake_args[@]}" -j1; } \
-  >test.log 2>&1 || {
+catkin_make tests -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 \
+  -j"$(nproc)" >test.log 2>&1 || {
   tail -80 test.log
-  echo "[test] catkin_make run_tests failed (full log: test.log)"
+  echo "[test] building the tests failed (full log: test.log)"
+  exit 1
+}
+# Each package's tests by kind (run_tests_<package>_<kind>): the gtests (unit tests, no
+# timing) in parallel, the rest one at a time: two end-to-end tests sharing the 2 cores
+# play their devices in less than real time, each slowing the other (the rostests and
+# session tests measure a live system: poses, VOs received, latencies).
+targets="$(make -C build help | sed -n 's/^\.\.\. \(run_tests_[a-z_]*\)$/\1/p')"
+unit=() live=()
+for pkg in $(sed -n 's:.*<name>\(.*\)</name>.*:\1:p' src/*/package.xml); do
+  for t in $(grep -E "^run_tests_${pkg}_[a-z]+\$" <<<"$targets"); do
+    if [[ "$t" == *_gtest ]]; then unit+=("$t"); else live+=("$t"); fi
+  done
+done
+{ make -C build -j"$(nproc)" "${unit[@]}" && make -C build -j1 "${live[@]}"; } >>test.log 2>&1 || {
+  tail -80 test.log
+  echo "[test] running the package tests failed (full log: test.log)"
   exit 1
 }
 status=0
