@@ -56,6 +56,9 @@ void ServerConfig::validate() const {
   if (!(autosave_period >= 1.0 && autosave_period <= 86400.0)) {
     fail("autosave_period", "must be in [1, 86400] s");
   }
+  if (!(heap_trim_period >= 0.0 && heap_trim_period <= 3600.0)) {
+    fail("heap_trim_period", "must be in [0, 3600] s (0 = never)");
+  }
   if (map_dir.empty()) fail("map_dir", "must be a folder");
   if (!(max_map_mb >= 1.0 && max_map_mb <= 65536.0)) fail("max_map_mb", "must be in [1, 65536] MB");
   if (autosave_file.empty()) fail("autosave_file", "must be 'auto', 'none' or a path");

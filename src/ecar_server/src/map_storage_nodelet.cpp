@@ -16,6 +16,11 @@
 // link (never followed), not a FIFO (refused without waiting), not a file over
 // max_map_mb. map_file and autosave_file come from the operator's
 // configuration and may lie anywhere.
+//
+// It also returns the process's free heap pages to the system every
+// heap_trim_period seconds and after every save (ecar::trimHeap): the saves
+// make the server's largest short-lived buffers.
+#include <cstdio>
 #include <memory>
 #include <optional>
 #include <string>
@@ -28,6 +33,7 @@
 
 #include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/heap.h"
 #include "ecar_core/io/safe_file.h"
 #include "ecar_server/ros_params.h"
 
@@ -39,6 +45,7 @@ class MapStorageNodelet : public nodelet::Nodelet {
     save_srv_.shutdown();
     load_srv_.shutdown();
     autosave_timer_.stop();
+    trim_timer_.stop();
     autosave("on shutdown");
   }
 
@@ -84,6 +91,26 @@ class MapStorageNodelet : public nodelet::Nodelet {
       NODELET_INFO("autosave: every %.0f s and on shutdown to '%s'", config.autosave_period,
                    autosave_path_.c_str());
     }
+    if (config.heap_trim_period > 0.0) {
+      trim_timer_ = nh.createWallTimer(ros::WallDuration(config.heap_trim_period),
+                                       [this](const ros::WallTimerEvent&) { trimHeap(); });
+    }
+  }
+
+  // Gives the heap's free pages back to the system; says what it did (at
+  // info level every 5 minutes).
+  void trimHeap() {
+    const ecar::HeapTrim t = ecar::trimHeap();
+    if (!t.after.available) return;
+    constexpr double kMB = 1024.0 * 1024.0;
+    char text[200];
+    std::snprintf(text, sizeof(text),
+                  "heap %.1f MB in use, %.1f MB free in the allocator; resident %.1f -> %.1f MB "
+                  "after a %.1f ms trim",
+                  t.after.in_use / kMB, t.after.free_held / kMB, t.before.resident / kMB,
+                  t.after.resident / kMB, t.milliseconds);
+    NODELET_DEBUG("%s", text);
+    NODELET_INFO_THROTTLE(300.0, "%s", text);
   }
 
   // Saves the map to the autosave file (nothing before a device connected).
@@ -99,6 +126,7 @@ class MapStorageNodelet : public nodelet::Nodelet {
     } catch (const std::exception& e) {
       NODELET_ERROR("autosave (%s) failed: %s", when, e.what());
     }
+    if (trim_timer_.isValid()) trimHeap();
   }
 
   // The file a service caller's path stands for (ecar::MapFolder::resolve).
@@ -123,6 +151,7 @@ class MapStorageNodelet : public nodelet::Nodelet {
       res.message = e.what();
       NODELET_WARN("save_map failed: %s", e.what());
     }
+    if (trim_timer_.isValid()) trimHeap();
     return true;
   }
 
@@ -189,7 +218,7 @@ class MapStorageNodelet : public nodelet::Nodelet {
 
   std::shared_ptr<ecar::GlobalGraph> graph_;
   ros::ServiceServer save_srv_, load_srv_;
-  ros::WallTimer autosave_timer_;
+  ros::WallTimer autosave_timer_, trim_timer_;
   std::string autosave_path_;
   bool autosaved_ = false;
   std::optional<ecar::MapFolder> folder_;  ///< map_dir (empty: it could not be made)

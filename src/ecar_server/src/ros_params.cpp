@@ -72,6 +72,7 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
     c.autosave_file = expandHome(c.autosave_file);
   }
   r.read("autosave_period", &c.autosave_period);
+  r.read("heap_trim_period", &c.heap_trim_period);
 
   ecar::PlaneConfig& p = c.planes;
   ecar_bridge::ParamReader& planes = r.child("planes");

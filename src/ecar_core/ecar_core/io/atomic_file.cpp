@@ -18,10 +18,10 @@ namespace {
 std::string errnoText() { return std::strerror(errno); }
 
 // Writes all of `bytes` to the open descriptor `fd`.
-bool writeAll(int fd, const std::vector<uint8_t>& bytes) {
+bool writeAll(int fd, const ByteSpan& bytes) {
   size_t done = 0;
-  while (done < bytes.size()) {
-    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+  while (done < bytes.size) {
+    const ssize_t n = ::write(fd, bytes.data + done, bytes.size - done);
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) return false;
     done += static_cast<size_t>(n);
@@ -33,6 +33,11 @@ bool writeAll(int fd, const std::vector<uint8_t>& bytes) {
 
 void writeFileAtomically(const std::string& path, const std::vector<uint8_t>& bytes,
                          const std::string& what) {
+  writeFilePartsAtomically(path, {{bytes.data(), bytes.size()}}, what);
+}
+
+void writeFilePartsAtomically(const std::string& path, const std::vector<ByteSpan>& parts,
+                              const std::string& what) {
   // A name of its own per write: two writers of one path never share it.
   static std::atomic<uint32_t> writes{0};
   checkReplaceable(path, what);
@@ -44,7 +49,9 @@ void writeFileAtomically(const std::string& path, const std::vector<uint8_t>& by
   if (fd < 0) {
     throw Error(what + ": cannot create its temporary file " + quote(tmp) + ": " + errnoText());
   }
-  if (!writeAll(fd, bytes) || ::fsync(fd) != 0) {
+  bool written = true;
+  for (const ByteSpan& part : parts) written = written && writeAll(fd, part);
+  if (!written || ::fsync(fd) != 0) {
     const std::string why = errnoText();
     ::close(fd);
     ::unlink(tmp.c_str());

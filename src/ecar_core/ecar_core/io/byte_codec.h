@@ -38,6 +38,8 @@ class ByteWriter {
   /// Rotation row by row, then translation: twelve f64.
   void se3(const SE3& T);
 
+  /// Room for `bytes` in all, so that a large record grows without copies.
+  void reserve(size_t bytes) { bytes_.reserve(bytes); }
   size_t size() const { return bytes_.size(); }
   const std::vector<uint8_t>& data() const { return bytes_; }
   /// The buffer, leaving the writer empty.

@@ -42,7 +42,7 @@ void MapFileWriter::addSection(const std::string& name, std::vector<uint8_t> byt
   sections_.emplace_back(name, std::move(bytes));
 }
 
-std::vector<uint8_t> MapFileWriter::serialize() const {
+std::vector<uint8_t> MapFileWriter::header() const {
   ByteWriter header;
   header.bytes(kMagic.data(), kMagic.size());
   header.u32(kMapFileVersion);
@@ -59,14 +59,23 @@ std::vector<uint8_t> MapFileWriter::serialize() const {
     offset += s.second.size();
   }
   header.u32(crc32(header.data().data(), header.size()));
-  std::vector<uint8_t> out = header.release();
-  out.reserve(offset);
+  return header.release();
+}
+
+std::vector<uint8_t> MapFileWriter::serialize() const {
+  std::vector<uint8_t> out = header();
+  size_t size = out.size();
+  for (const auto& s : sections_) size += s.second.size();
+  out.reserve(size);
   for (const auto& s : sections_) out.insert(out.end(), s.second.begin(), s.second.end());
   return out;
 }
 
 void MapFileWriter::write(const std::string& path) const {
-  writeFileAtomically(path, serialize(), "map file " + quote(path));
+  const std::vector<uint8_t> head = header();
+  std::vector<ByteSpan> parts = {{head.data(), head.size()}};
+  for (const auto& s : sections_) parts.push_back({s.second.data(), s.second.size()});
+  writeFilePartsAtomically(path, parts, "map file " + quote(path));
 }
 
 // ---------------------------------------------------------------- MapFileReader

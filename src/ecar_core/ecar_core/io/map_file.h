@@ -65,13 +65,18 @@ class MapFileWriter {
   void addSection(const std::string& name, std::vector<uint8_t> bytes);
   /// The whole file.
   std::vector<uint8_t> serialize() const;
-  /// Writes serialize() to a temporary file beside `path` (`path`.tmp.<pid>.<n>),
+  /// Writes serialize()'s bytes (the header, then each section from where it
+  /// is held, without one buffer of the whole file) to a temporary file beside
+  /// `path` (`path`.tmp.<pid>.<n>),
   /// flushes it to disk and renames it over `path`: a reader sees the old file
   /// or the new one, never a part. Throws ecar::Error naming the file and the
   /// system error (the temporary file is removed).
   void write(const std::string& path) const;
 
  private:
+  /// Magic, version and the section table with its CRCs.
+  std::vector<uint8_t> header() const;
+
   std::vector<std::pair<std::string, std::vector<uint8_t>>> sections_;
 };
 

@@ -42,8 +42,19 @@ constexpr size_t kObservationBytes = 8;   // keyframe id, keypoint index
 
 std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& default_camera) {
   ByteWriter out;
-  out.u32(kSlamSectionVersion);
   const std::vector<KeyFrameId> keyframes = map.keyframeIds();
+  const std::vector<MapPointId> points = map.pointIds();
+  // At least the bytes written below (a map of 100 keyframes is about 15 MB:
+  // grown by doubling it would be copied and held twice over).
+  size_t bound = 4096;
+  for (const KeyFrameId id : keyframes) {
+    const KeyFrame& kf = *map.keyframe(id);
+    bound +=
+        512 + kf.features.keypoints.size() * (24 + kDescriptorRecordBytes) + kf.points.size() * 4;
+  }
+  for (const MapPointId id : points) bound += 160 + map.point(id)->observations.size() * 8;
+  out.reserve(bound);
+  out.u32(kSlamSectionVersion);
   // The default camera first, then the keyframes' distinct cameras (keyframes
   // of one device share one object).
   std::vector<CameraPtr> cameras = {std::make_shared<const PinholeCamera>(default_camera)};
@@ -113,7 +124,6 @@ std::vector<uint8_t> encodeSlamMap(const Map& map, const PinholeCamera& default_
     for (const MapPointId pid : kf.points) out.u32(pid.value);
   }
 
-  const std::vector<MapPointId> points = map.pointIds();
   out.u32(static_cast<uint32_t>(points.size()));
   for (const MapPointId id : points) {
     const MapPoint& p = *map.point(id);

@@ -496,6 +496,9 @@ void KeypointIndex::removeLocked(KeyFrameId id) {
       if (p != bucket.end()) {
         *p = bucket.back();
         bucket.pop_back();
+        // An emptied bucket gives its memory back (as PlaceIndex's postings do): the
+        // index holds what its keyframes need, not the most each bucket ever held.
+        if (bucket.empty()) std::vector<uint32_t>().swap(bucket);
       }
     }
     entries_[e] = Entry();
@@ -520,6 +523,17 @@ size_t KeypointIndex::size() const {
 size_t KeypointIndex::entries() const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   return entries_.size() - free_entries_.size();
+}
+
+size_t KeypointIndex::memoryBytes() const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  size_t bytes = entries_.capacity() * sizeof(Entry) + free_entries_.capacity() * sizeof(uint32_t);
+  bytes += buckets_.capacity() * sizeof(std::vector<uint32_t>);
+  for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(uint32_t);
+  for (const auto& [id, rows] : entries_of_) {
+    bytes += sizeof(id) + sizeof(rows) + sizeof(void*) + rows.capacity() * sizeof(uint32_t);
+  }
+  return bytes + entries_of_.bucket_count() * sizeof(void*);
 }
 
 std::vector<KeypointMatch> KeypointIndex::query(const cv::Mat& descriptors, int max_distance,

@@ -168,6 +168,9 @@ class KeypointIndex {
   void clear();
   size_t size() const;  ///< indexed keyframes
   size_t entries() const;
+  /// Estimate of the heap memory held by the index (bytes): it follows the
+  /// keyframes indexed now, not the most ever indexed.
+  size_t memoryBytes() const;
 
   /// For each query row, up to `per_row` indexed keypoints within
   /// `max_distance` bits, nearest first (ties by keyframe id, row). Rows are

@@ -131,6 +131,12 @@ TEST(SafeFileTest, AtomicWritesRefuseLinksAndPlantedTemporaries) {
   writeFileAtomically(tmp.path() + "/c.ecarmap", {1, 2}, "map file");
   writeFileAtomically(tmp.path() + "/c.ecarmap", {3}, "map file");
   EXPECT_EQ(readBytes(tmp.path() + "/c.ecarmap"), (std::vector<uint8_t>{3}));
+  // A file written from parts is the parts one after the other.
+  const std::vector<uint8_t> head = {1, 2, 3}, tail = {4, 5};
+  writeFilePartsAtomically(tmp.path() + "/c.ecarmap",
+                           {{head.data(), head.size()}, {nullptr, 0}, {tail.data(), tail.size()}},
+                           "map file");
+  EXPECT_EQ(readBytes(tmp.path() + "/c.ecarmap"), (std::vector<uint8_t>{1, 2, 3, 4, 5}));
 }
 
 }  // namespace

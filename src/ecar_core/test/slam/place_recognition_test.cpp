@@ -330,5 +330,36 @@ TEST(KeypointIndexTest, FindsNearDescriptorsAndForgetsRemovedKeyframes) {
   EXPECT_THROW(KeypointIndex(KeypointIndexConfig{0, 14, 1}), Error);
 }
 
+// A server culls keyframes all day: the index must hold what its 20 live
+// keyframes need after 200 have come and gone, not every bucket they ever filled.
+TEST(KeypointIndexTest, MemoryFollowsTheLiveKeyframesUnderChurn) {
+  std::mt19937 rng(11);
+  KeypointIndex index;
+  const size_t empty = index.memoryBytes();
+  std::vector<int> rows(300);
+  std::iota(rows.begin(), rows.end(), 0);
+  constexpr uint32_t kLive = 20;
+  for (uint32_t id = 1; id <= kLive; ++id)
+    index.add(KeyFrameId(id), randomDescriptors(300, &rng), rows);
+  const size_t window = index.memoryBytes();
+  ASSERT_GT(window, empty);
+  for (uint32_t id = kLive + 1; id <= 200; ++id) {
+    index.remove(KeyFrameId(id - kLive));
+    index.add(KeyFrameId(id), randomDescriptors(300, &rng), rows);
+  }
+  EXPECT_EQ(index.size(), kLive);
+  EXPECT_EQ(index.entries(), kLive * 300);
+  const size_t churned = index.memoryBytes();
+  EXPECT_LE(churned - empty, (window - empty) * 3 / 2)
+      << "empty " << empty << " B, 20 keyframes " << window << " B, after churn " << churned
+      << " B";
+  for (uint32_t id = 181; id <= 200; ++id) index.remove(KeyFrameId(id));
+  EXPECT_EQ(index.entries(), 0u);
+  // Every bucket gave its memory back (12 tables x 6000 entries of 4 bytes);
+  // the entry table and its free list stay for the next keyframes.
+  const size_t tables = static_cast<size_t>(KeypointIndexConfig().tables);
+  EXPECT_GE(window - index.memoryBytes(), tables * kLive * 300 * sizeof(uint32_t));
+}
+
 }  // namespace
 }  // namespace ecar

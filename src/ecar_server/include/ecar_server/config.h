@@ -140,6 +140,9 @@ struct ServerConfig {
   /// the server shuts down.
   std::string autosave_file = "auto";
   double autosave_period = 60.0;  ///< s
+  /// s between returns of the heap's free pages to the system (ecar::trimHeap),
+  /// also done after every save; 0 = never.
+  double heap_trim_period = 10.0;
   /// The autosave path autosave_file stands for ("" = off).
   std::string autosavePath() const;
   /// Whether map_file is this server's own autosave (the same file as

@@ -60,6 +60,9 @@ def build_parser(description=None):
                         "judge); 0 = report only")
     p.add_argument("--recover-timeout", type=float, default=90.0,
                    help="s every device has after a fault to receive an aligned local graph")
+    p.add_argument("--server-prefix", default="",
+                   help="command the server's nodelet manager runs under (launch_prefix), e.g. "
+                   "'heaptrack -o OUT/heaptrack' to attribute its memory")
     p.add_argument("--datasets", default=os.path.join(REPO_ROOT, "out", "datasets"),
                    help="where generated datasets are kept and reused")
     p.add_argument("--out", default=os.path.join(REPO_ROOT, "out", "soak"), help="output folder")

@@ -126,6 +126,8 @@ class Soak:
     def server_command(self, life):
         a = [("database", self.database), ("map_dir", self.map_dir),
              ("autosave_period", "%g" % self.args.autosave_period), ("output", "screen")]
+        if self.args.server_prefix:
+            a.append(("launch_prefix", self.args.server_prefix))
         if life > 1 and os.path.exists(self.autosave):
             a.append(("map", self.autosave))  # as an operator resumes after a crash
         return launching.Include(os.path.join(options.REPO_ROOT, "launch", "server.launch"),
