@@ -94,7 +94,7 @@ class LedgerTest(unittest.TestCase):
 
 
 def samples(life, start, seconds, kib, slope=0.0, every=2.0):
-    return [memory.Sample(start + i * every, life, kib + slope * i * every, 1000)
+    return [memory.Sample(start + i * every, life, kib + slope * i * every, 1000, None, None)
             for i in range(int(seconds / every))]
 
 
@@ -117,10 +117,25 @@ class MemoryTest(unittest.TestCase):
         s[-3] = s[-3]._replace(server_kib=180000)
         self.assertAlmostEqual(memory.growth(s, warmup=60.0)[0].percent, 0.0)
 
+    def test_growth_of_one_part(self):
+        # Anonymous memory growing 20 KiB/s, the total flat: each field judged on its own.
+        s = [x._replace(server_anon_kib=50000 + 20 * x.t, server_file_kib=40000)
+             for x in samples(1, 0.0, 300.0, 100000.0)]
+        anon = memory.growth(s, 60.0, "server_anon_kib")[0]
+        self.assertAlmostEqual(anon.percent, 100.0 * 20 * 195 / anon.base_kib, delta=1.0)
+        self.assertAlmostEqual(memory.growth(s, 60.0, "server_file_kib")[0].percent, 0.0)
+        self.assertAlmostEqual(memory.growth(s, 60.0)[0].percent, 0.0)
+        self.assertEqual(memory.growth(samples(1, 0.0, 300.0, 1.0), 60.0, "server_anon_kib"), [])
+
     def test_rss_of_this_process_and_of_none(self):
         self.assertGreater(memory.rss_kib(os.getpid()), 1000)
         self.assertIsNone(memory.rss_kib(None))
         self.assertIsNone(memory.rss_kib(2 ** 22 + 12345))
+        anon, mapped = memory.rss_parts_kib(os.getpid())
+        self.assertGreater(anon, 100)
+        self.assertGreater(mapped, 100)
+        self.assertLessEqual(anon + mapped, memory.rss_kib(os.getpid()) + 1024)
+        self.assertEqual(memory.rss_parts_kib(None), (None, None))
 
 
 class GraphStatusTest(unittest.TestCase):

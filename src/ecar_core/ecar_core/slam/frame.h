@@ -17,18 +17,30 @@
 
 namespace ecar {
 
-/// Keypoint indices bucketed by undistorted position.
+/// Keypoint indices bucketed by undistorted position, in two arrays (the
+/// entries sorted by cell, and where each cell's entries start): a frame's grid
+/// is two allocations whatever its size, and copying it (a keyframe keeps its
+/// frame's) is two block copies.
 class FeatureGrid {
  public:
   static constexpr int kCell = 16;  ///< px
   /// Buckets `points` lying in [min_u, max_u) x [min_v, max_v) (the camera's
-  /// undistorted image box).
+  /// undistorted image box). Reuses the grid's memory.
   void build(const std::vector<Eigen::Vector2d>& points, const std::vector<cv::KeyPoint>& kps,
              double min_u, double min_v, double max_u, double max_v);
   /// Indices of keypoints within `radius` px of (u, v) whose octave lies in
   /// [min_level, max_level] (-1: no bound). Appends to *out after clearing it.
   void query(double u, double v, double radius, int min_level, int max_level,
              std::vector<int>* out) const;
+  /// Empties the grid (queries find nothing), keeping its memory for the next build.
+  void clear() {
+    entries_.clear();
+    cell_start_.clear();
+  }
+  /// Heap memory held (bytes).
+  size_t memoryBytes() const {
+    return entries_.capacity() * sizeof(Entry) + cell_start_.capacity() * sizeof(uint32_t);
+  }
 
  private:
   struct Entry {
@@ -38,7 +50,8 @@ class FeatureGrid {
   };
   int cols_ = 0, rows_ = 0;
   double origin_u_ = 0.0, origin_v_ = 0.0;
-  std::vector<std::vector<Entry>> cells_;  ///< own copies: a Frame can be copied
+  std::vector<Entry> entries_;        ///< by cell (row-major), then keypoint index
+  std::vector<uint32_t> cell_start_;  ///< cols_ * rows_ + 1: cell c is [start[c], start[c+1])
 };
 
 /// Pyramid constants shared by frames and keyframes.
@@ -66,6 +79,10 @@ struct Frame {
   size_t size() const { return keypoints.size(); }
   /// Fills undistorted positions and the grid from keypoints (call after detection).
   void finalize(const PinholeCamera& camera);
+  /// An empty frame that keeps its vectors' memory for the next image (a tracker
+  /// refills one frame per image); the descriptors are released, not reused,
+  /// since a keyframe may share them.
+  void clear();
 };
 
 /// Intrinsics of the undistorted pinhole of a camera.

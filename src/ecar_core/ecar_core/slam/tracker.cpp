@@ -77,7 +77,7 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
   } else {
     gray = image;
   }
-  current_ = Frame();
+  current_.clear();  // the frame before last's memory, reused
   current_.frame_index = frame_index;
   current_.timestamp = timestamp;
   current_.gravity_c = gravity_c;
@@ -143,7 +143,6 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
       reference_pose_ = ref ? ref->T_c_w : SE3::Identity();
     }
     last_inliers_ = static_cast<int>(std::count(inliers_.begin(), inliers_.end(), true));
-    last_ = current_;
     last_matches_ = matches_;
     for (size_t i = 0; i < last_matches_.size(); ++i) {
       if (!inliers_[i]) last_matches_[i] = MapPointId();
@@ -152,7 +151,10 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
     velocity_.reset();
   }
   result.state = state_;
-  if (state_ == TrackingState::kOk) fillResult(&result);
+  if (state_ == TrackingState::kOk) {
+    fillResult(&result);
+    std::swap(last_, current_);  // this frame becomes the last one, without a copy
+  }
   result.track_ms = msSince(t1);
   if (result.new_keyframe && config_.synchronous_mapping) mapper_->processPending();
   return result;

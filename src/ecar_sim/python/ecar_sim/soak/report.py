@@ -59,6 +59,10 @@ def build(args, soak, ledger, hostile, editor):
         "memory": {
             "warmup_s": args.warmup, "window_s": memory.WINDOW_S,
             "lives": [l._asdict() for l in lives],
+            # The same growth for the two parts of resident memory (reported, not judged).
+            "parts": {part: [l._asdict() for l in memory.growth(soak.samples, args.warmup, field)]
+                      for part, field in (("anonymous", "server_anon_kib"),
+                                          ("file", "server_file_kib"))},
             "max_growth_percent": worst,
             "server_peak_mb": _peak(soak.samples, "server_kib"),
             "devices_peak_mb": _peak(soak.samples, "devices_kib"),
@@ -96,9 +100,11 @@ def write(out, summary, soak):
         json.dump(summary, f, indent=1, default=str)
     with open(os.path.join(out, "memory.csv"), "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["t_s", "server_life", "server_rss_kib", "devices_rss_kib"])
+        w.writerow(["t_s", "server_life", "server_rss_kib", "devices_rss_kib",
+                    "server_rss_anon_kib", "server_rss_file_kib"])
         for s in soak.samples:
-            w.writerow([s.t, s.life, s.server_kib or "", s.devices_kib or ""])
+            w.writerow([s.t, s.life, s.server_kib or "", s.devices_kib or "",
+                        s.server_anon_kib or "", s.server_file_kib or ""])
     plot_memory(os.path.join(out, "memory.png"), soak.samples, summary)
     with open(os.path.join(out, "REPORT.md"), "w") as f:
         f.write(markdown(summary))
@@ -111,6 +117,9 @@ def plot_memory(path, samples, summary):
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(10, 4.5))
     for field, label, colour in (("server_kib", "server (nodelet manager)", "tab:blue"),
+                                 ("server_anon_kib", "server: anonymous (heap, stacks)",
+                                  "tab:cyan"),
+                                 ("server_file_kib", "server: mapped files (code)", "0.5"),
                                  ("devices_kib", "light devices (one manager)", "tab:green")):
         pts = [(s.t, getattr(s, field) / 1024.0) for s in samples
                if getattr(s, field) is not None]
@@ -178,6 +187,14 @@ def markdown(s):
             if l["percent"] is None else "%+.1f%%" % l["percent"]))
     lines += ["", "Peak: server %s MB, light devices %s MB." % (m["server_peak_mb"],
                                                               m["devices_peak_mb"]), ""]
+    for part, lives in sorted(m.get("parts", {}).items()):
+        judged = [l for l in lives if l["judged"]]
+        if judged:
+            lines.append("Server's %s resident memory, by life after warm-up: %s." % (
+                part, ", ".join("%d: %.1f -> %.1f MB (%+.1f%%)" % (
+                    l["index"], l["base_kib"] / 1024.0, l["end_kib"] / 1024.0, l["percent"])
+                    for l in judged)))
+    lines.append("")
     if m.get("map_sizes"):
         lines += ["The map over time (save_map every minute): " + ", ".join(
             "%.0f s: %d keyframes, %d points, %d objects" % (

@@ -211,9 +211,12 @@ class Soak:
                                    "planes": res.planes, "objects": res.objects})
 
     def sample(self, master):
+        server = self.server.pid(master)
+        anon, mapped = memory.rss_parts_kib(server)
         self.samples.append(memory.Sample(round(self.t(), 1), self.server.life,
-                                          memory.rss_kib(self.server.pid(master)),
-                                          memory.rss_kib(self.light.pid(master))))
+                                          memory.rss_kib(server),
+                                          memory.rss_kib(self.light.pid(master)),
+                                          anon, mapped))
 
 
 def run(args):
