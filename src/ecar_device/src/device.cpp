@@ -348,6 +348,7 @@ void Device::publishResult(const std_msgs::Header& image_header, const cv::Mat& 
       config_.device_id, image_header.stamp, config_.map_frame, r,
       static_cast<uint32_t>(tracker_->numKeyFrames()), static_cast<uint32_t>(tracker_->numPoints()),
       uploaded, objects_.objects());
+  frame.map_id = map_id_;  // the map of the graphs tracked against
   frame.object_received.reserve(frame.object_ids.size());
   for (size_t i = 0; i < frame.object_ids.size(); ++i) {
     const auto it = object_arrival_.find(frame.object_ids[i]);

@@ -10,7 +10,7 @@
 4. Answers uploads with NOT_INITIALISED local graphs: metrics arrive with the upload's bytes.
 5. Sends bad graphs (another device, NaN pose, unknown frame): the device keeps running.
 6. Stops answering: the device connects again within a few reconnect timeouts and sets reset.
-7. Answers with OK graphs (the ground-truth pose, no points: the device does not track, so touch
+7. Answers with OK graphs in map 3 (its device frames name map 3 from then on; the ground-truth pose, no points: the device does not track, so touch
    rays start at the graph's pose) holding the corridor's floor plane: a touch stroke produces
    REGISTER interactions whose lines lie on the floor, ahead of the device, chained, with the
    touch's colour and width; accepted ones come back in a graph and are drawn into ar_view in
@@ -182,6 +182,7 @@ class DeviceTest(unittest.TestCase):
                      g.pose.orientation.w) = pose[1]
                     g.planes = [floor_plane()]
                     g.objects = list(self.objects)
+                    g.map_id = 3
                     self.last_pose = pose
             g.map_epoch = 7
             g.upload_sent = msg.sent
@@ -300,6 +301,11 @@ class DeviceTest(unittest.TestCase):
         with self.lock:
             self.ok_graphs = True
         self.wait_for(lambda: self.last_pose is not None, 10.0, "an OK graph")
+        # Its frames name the map of the graphs it took (0 before the first with a map).
+        self.wait_for(lambda: any(f.map_id == 3 for f in self.frames), 5.0,
+                      "a device frame in map 3")
+        with self.lock:
+            self.assertEqual({f.map_id for f in self.frames}, {0, 3})
         time.sleep(0.5)
         while self.touch_pub.get_num_connections() == 0:
             time.sleep(0.05)

@@ -149,6 +149,50 @@ class FinalMapTest(unittest.TestCase):
         self.assertEqual(s["device_vs_server_frames"], 1)
         self.assertAlmostEqual(s["device_vs_server_rmse_m"], 0.03)
 
+    def test_poses_after_leaving_the_final_map_are_left_out(self):
+        # device_0 starts in map 1 (the final map, where device_1 ends), is lost and
+        # relocalised into map 2 at frame 4, which had not merged by the end: its own poses
+        # from frame 5 on are in map 2's coordinates, 5 m away.
+        r = records()
+        r.server_maps = {"device_0": {2: 1, 3: 1, 4: 2, 5: 2}, "device_1": {0: 1}}
+        for f in (5, 7):
+            e = r.device_frames["device_0"][f]
+            r.device_frames["device_0"][f] = e._replace(position=(f + 5.0, 0.0, 0.0))
+        in_final = maps.frames_of(r, "device_0", 1)
+        self.assertEqual([f for f in range(8) if in_final.device(f)], [0, 1, 2, 3, 4])
+        self.assertEqual([f for f in range(8) if in_final.server(f)], [2, 3])
+        estimates = {}
+        with tempfile.TemporaryDirectory() as tmp:
+            write_dataset(os.path.join(tmp, "d"), 8)
+
+            def ate(gt, est, env, sim3):
+                with open(est) as f:
+                    estimates[os.path.basename(est)] = [l.split()[1] for l in f
+                                                        if not l.startswith("#")]
+                return 0.0
+
+            s = ev.device_summary("device_0", os.path.join(tmp, "d"), r, tmp, {},
+                                  ate_rmse=ate, final=1)
+        # The device's own trajectory keeps its tracked frames in map 1 only (2, 3 and 4).
+        self.assertEqual([float(x) for x in estimates["device_0_device.txt"]], [2.0, 3.0, 4.0])
+        self.assertEqual(s["server_poses_other_maps"], 2)
+        self.assertEqual(s["device_vs_server_frames"], 2)
+
+    def test_the_map_the_device_names_decides(self):
+        # The merge's graph (frame 4, map 1) reached the device only after it had tracked
+        # frame 5 in map 2's coordinates: the device says so (DeviceFrame.map_id).
+        r = records()
+        r.server_maps = {"device_0": {2: 2, 3: 2, 4: 1, 5: 1}, "device_1": {0: 1}}
+        for f, m in ((2, 2), (3, 2), (4, 2), (5, 2), (6, 1), (7, 1)):
+            r.device_frames["device_0"][f] = r.device_frames["device_0"][f]._replace(map_id=m)
+        in_final = maps.frames_of(r, "device_0", 1)
+        self.assertEqual([f for f in range(8) if in_final.device(f)], [6, 7])
+        # Without the device's word, the last graph before frame 5 (frame 4's, map 1) decides.
+        r = records()
+        r.server_maps = {"device_0": {2: 2, 3: 2, 4: 1, 5: 1}, "device_1": {0: 1}}
+        in_final = maps.frames_of(r, "device_0", 1)
+        self.assertEqual([f for f in range(8) if in_final.device(f)], [5, 6, 7])
+
     def test_planes_of_merged_maps_are_counted_apart(self):
         # device_0 held planes 3 and 5 in its map 2 before the merge (and dropped them with
         # it); plane 4 came with a new version in map 1; plane 6 predates map ids.

@@ -28,8 +28,9 @@ from std_msgs.msg import Bool
 # each held version arrived on the device {object id: seconds} (DeviceFrame.object_received; 0
 # left out).
 FrameRecord = collections.namedtuple(
-    "FrameRecord", "status position orientation uploaded tracking_time wall held received",
-    defaults=(None,))
+    "FrameRecord",
+    "status position orientation uploaded tracking_time wall held received map_id",
+    defaults=(None, 0))
 
 # Progress of one device so far: frames received, uploads, local graphs, and the wall times
 # of its first and last frame (None before the first).
@@ -120,7 +121,8 @@ class Records:
         record = FrameRecord(m.status, position, orientation, m.uploaded, m.tracking_time, now,
                              dict(zip(m.object_ids, m.object_versions)),
                              {i: t.to_sec() for i, t in zip(m.object_ids, m.object_received)
-                              if not t.is_zero()})
+                              if not t.is_zero()},
+                             m.map_id)
         with self.lock:
             self.device_frames.setdefault(m.device_id, {})[m.frame_index] = record
             self.first_frame_wall.setdefault(m.device_id, now)

@@ -7,6 +7,7 @@ metrics (device-vs-server, ATE, the map -> world fit of the VO and plane metrics
 each device's frames in the session's final map only, from its last switch into it on.
 """
 
+import bisect
 from collections import Counter
 
 
@@ -20,12 +21,18 @@ def final_map(records, devices):
 class FinalMapFrames:
     """Which frames of one device are in `final`:
     server(f)  its local graph of frame f is in the final map, on or after the switch;
-    device(f)  the device's own pose of frame f is: after the switch (the device tracked the
-               upload whose graph first named the final map in the old map's coordinates);
-               every frame when the device was never in another map.
+    device(f)  the device's own pose of frame f is in the final map's coordinates, after the
+               switch: the map the device names for that frame (DeviceFrame.map_id, its last
+               graph's map when it tracked the frame) is the final map. For devices that did
+               not name it (older recordings): the device's latest graph before frame f is in
+               the final map (the device tracked the upload whose graph first named the final
+               map in the old map's coordinates). Frames before the first graph count when the
+               final map was the device's first. A device that left the final map (lost,
+               relocalised into another) has its later poses in that other map's coordinates:
+               they do not count.
     Records without map ids (older sessions) are one map: every frame counts."""
 
-    def __init__(self, server_maps, final):
+    def __init__(self, server_maps, final, device_maps=None):
         self.maps = sorted(set(server_maps.values()))
         self.switch, self.moved = None, False
         previous = None
@@ -37,6 +44,8 @@ class FinalMapFrames:
         self.final = final
         self.server_maps = server_maps
         self.in_final = self.switch is not None
+        self._frames = sorted(server_maps)
+        self.device_maps = device_maps or {}
 
     def server(self, f):
         if not self.server_maps:
@@ -44,9 +53,17 @@ class FinalMapFrames:
         return self.in_final and f >= self.switch and self.server_maps.get(f) == self.final
 
     def device(self, f):
-        if not self.server_maps or not self.moved:
+        if not self.server_maps:
             return True
-        return self.in_final and f > self.switch
+        if not self.in_final:
+            return False
+        if f <= self.switch:
+            return not self.moved
+        named = self.device_maps.get(f, 0)
+        if named:
+            return named == self.final
+        latest = self._frames[bisect.bisect_left(self._frames, f) - 1]  # the last graph before f
+        return self.server_maps[latest] == self.final
 
     def summary(self, server_frames):
         """The per-device summary fields: maps seen, the final map, from which frame on, and
@@ -58,4 +75,6 @@ class FinalMapFrames:
 
 def frames_of(records, device, final):
     """FinalMapFrames of `device` (records without server_maps: one map)."""
-    return FinalMapFrames(getattr(records, "server_maps", {}).get(device, {}), final)
+    frames = getattr(records, "device_frames", {}).get(device, {})
+    return FinalMapFrames(getattr(records, "server_maps", {}).get(device, {}), final,
+                          {f: getattr(e, "map_id", 0) for f, e in frames.items()})

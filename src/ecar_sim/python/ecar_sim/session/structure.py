@@ -113,7 +113,7 @@ def save_raw(path, records):
 
     raw = {
         "device_frames": {d: {str(f): [e.status, e.position, e.orientation, e.wall, e.held,
-                                       e.received or {}]
+                                       e.received or {}, e.map_id]
                               for f, e in fr.items()}
                           for d, fr in records.device_frames.items()},
         "server_poses": {d: {str(f): [p, q] for f, (p, q) in sp.items()}
@@ -142,7 +142,8 @@ class RawCollector:
         self.device_frames = {
             d: {int(f): FrameRecord(e[0], tuple(e[1]), tuple(e[2]), False, 0.0, e[3],
                                     {int(k): v for k, v in e[4].items()},
-                                    {int(k): v for k, v in (e[5] if len(e) > 5 else {}).items()})
+                                    {int(k): v for k, v in (e[5] if len(e) > 5 else {}).items()},
+                                    e[6] if len(e) > 6 else 0)
                 for f, e in fr.items()}
             for d, fr in raw["device_frames"].items()}
         self.server_poses = {d: {int(f): (tuple(p), tuple(q)) for f, (p, q) in sp.items()}
