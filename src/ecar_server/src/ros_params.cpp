@@ -82,6 +82,7 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   planes.read("max_planes", &p.max_planes);
   planes.read("seed", &p.seed);
   planes.read("cluster_cell", &p.cluster_cell);
+  planes.read("min_separation", &p.min_separation);
   planes.read("horizontal_tolerance_deg", &p.horizontal_tolerance_deg);
   planes.read("vertical_tolerance_deg", &p.vertical_tolerance_deg);
   planes.read("merge_angle_deg", &p.merge_angle_deg);

@@ -81,6 +81,7 @@ void PlaneConfig::validate() const {
   if (iterations < 1) fail("iterations", "must be >= 1");
   if (max_planes < 1) fail("max_planes", "must be >= 1");
   if (!finitePositive(cluster_cell)) fail("cluster_cell", "must be > 0 m");
+  if (!finitePositive(min_separation)) fail("min_separation", "must be > 0 m");
   if (!(horizontal_tolerance_deg > 0.0 && horizontal_tolerance_deg < 45.0)) {
     fail("horizontal_tolerance_deg", "must be in (0, 45) degrees");
   }

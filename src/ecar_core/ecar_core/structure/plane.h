@@ -87,6 +87,15 @@ struct PlaneConfig {
   /// m: inliers are binned in the plane in squares of this size; only the largest
   /// 8-connected group of occupied squares is kept (drops far coplanar strays).
   double cluster_cell = 0.5;
+  /// m: a plane found in a keyframe nearly parallel (normals within
+  /// merge_angle_deg) to one found before it in the same keyframe, with its
+  /// inliers' median distance to that one below this, is that plane's noise,
+  /// not a surface: its points are left out. Monocular depth noise puts a tail
+  /// of a surface's points up to ~20 cm off it, on the cameras' side, and
+  /// RANSAC on that tail found a "second floor" 5-19 cm above the floor, over
+  /// the whole room (the room scene's E8: strokes drawn on it, 9 cm up). Steps
+  /// lower than this are not told from their floor.
+  double min_separation = 0.12;
   // ---- labels
   double horizontal_tolerance_deg = 15.0;  ///< floor/ceiling: normal within this of up
   double vertical_tolerance_deg = 15.0;    ///< wall: normal within this of horizontal

@@ -140,6 +140,17 @@ void PlaneMap::refitGeometry(Entry* entry) {
   ++plane.version;
 }
 
+void PlaneMap::erase(PlaneId id, PlaneMapUpdate* update) {
+  Entry& e = planes_.at(id);
+  for (const auto& kv : e.points) point_owner_.erase(kv.first);
+  for (const KeyFrameId k : e.keyframes) {
+    auto& list = keyframe_planes_[k];
+    list.erase(std::remove(list.begin(), list.end(), id), list.end());
+  }
+  planes_.erase(id);
+  update->removed.push_back(id);
+}
+
 void PlaneMap::absorb(Entry* into, Entry* from) {
   for (const auto& [pid, p_w] : from->points) {
     into->points[pid] = p_w;
@@ -166,12 +177,24 @@ PlaneMapUpdate PlaneMap::integrate(const PlaneKeyFrameInput& input,
   std::unique_lock<std::shared_mutex> lock(mutex_);
   PlaneMapUpdate update;
 
+  // The keyframe's points take their current positions; a plane whose points
+  // moved is refitted below, seen or not. (Bundle adjustment moves points: a
+  // plane seen by one keyframe only stayed where its points had been first,
+  // 13-16 cm above the floor they had moved down to, and took the strokes
+  // drawn there.)
+  const double moved_sq = std::pow(0.25 * config_.distance_threshold, 2);
+  std::vector<PlaneId> moved;
   for (const auto& p : input.points) {
     const auto owner = point_owner_.find(p.id);
-    if (owner != point_owner_.end() && p.p_w.allFinite()) {
-      planes_.at(owner->second).points[p.id] = p.p_w;
-    }
+    if (owner == point_owner_.end() || !p.p_w.allFinite()) continue;
+    auto& points = planes_.at(owner->second).points;
+    const auto stored = points.find(p.id);
+    if (stored == points.end()) continue;
+    if ((stored->second - p.p_w).squaredNorm() > moved_sq) moved.push_back(owner->second);
+    stored->second = p.p_w;
   }
+  std::sort(moved.begin(), moved.end());
+  moved.erase(std::unique(moved.begin(), moved.end()), moved.end());
 
   std::vector<PlaneId> touched;
   for (const auto& obs : observations) {
@@ -218,6 +241,18 @@ PlaneMapUpdate PlaneMap::integrate(const PlaneKeyFrameInput& input,
     if (std::find(touched.begin(), touched.end(), best) == touched.end()) touched.push_back(best);
   }
   for (PlaneId id : touched) reestimate(&planes_.at(id), cam, up);
+  // Planes whose points moved: refitted (points now far leave them); one left
+  // with fewer than min_inliers points is no plane any more.
+  for (PlaneId id : moved) {
+    if (std::find(touched.begin(), touched.end(), id) != touched.end()) continue;
+    Entry& entry = planes_.at(id);
+    refitGeometry(&entry);
+    if (static_cast<int>(entry.points.size()) < config_.min_inliers) {
+      erase(id, &update);
+    } else {
+      touched.push_back(id);
+    }
+  }
 
   // Planes joined by this keyframe may now be one physical plane with another.
   for (size_t t = 0; t < touched.size(); ++t) {
@@ -393,16 +428,6 @@ PlaneMapUpdate PlaneMap::refit(
     MapId map, const std::function<std::optional<Eigen::Vector3d>(MapPointId)>& position) {
   std::unique_lock<std::shared_mutex> lock(mutex_);
   PlaneMapUpdate update;
-  const auto erase = [&](PlaneId id) {
-    Entry& e = planes_.at(id);
-    for (const auto& kv : e.points) point_owner_.erase(kv.first);
-    for (const KeyFrameId k : e.keyframes) {
-      auto& list = keyframe_planes_[k];
-      list.erase(std::remove(list.begin(), list.end(), id), list.end());
-    }
-    planes_.erase(id);
-    update.removed.push_back(id);
-  };
   std::vector<PlaneId> ids;
   for (const auto& [id, entry] : planes_) {
     if (entry.plane.map == map) ids.push_back(id);
@@ -415,7 +440,7 @@ PlaneMapUpdate PlaneMap::refit(
       if (p && p->allFinite()) p_w = *p;
     }
     refitGeometry(&e);
-    if (e.points.size() < 3) erase(id);
+    if (e.points.size() < 3) erase(id, &update);
   }
   // Planes that are one physical plane now: the lower id absorbs the higher.
   bool merged = true;

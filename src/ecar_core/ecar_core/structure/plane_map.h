@@ -56,8 +56,11 @@ class PlaneMap {
   /// points already held by another plane stay there), refreshes the positions of
   /// its points present in input.points, is refitted by least squares, drops
   /// points farther than keep_factor * distance_threshold, gets a new hull, label
-  /// and version. Two planes that now match are merged (the lower id survives).
-  /// Links the keyframe to the planes its observations joined.
+  /// and version. A plane none of them joined but whose points in input.points
+  /// moved (by more than distance_threshold / 4) is refitted as well, and goes
+  /// when fewer than min_inliers points stay. Two planes that now match are
+  /// merged (the lower id survives). Links the keyframe to the planes its
+  /// observations joined.
   PlaneMapUpdate integrate(const PlaneKeyFrameInput& input,
                            const std::vector<PlaneObservation>& observations);
 
@@ -136,6 +139,8 @@ class PlaneMap {
   /// reestimate without the label: fit, drop far points, hull, version + 1.
   void refitGeometry(Entry* entry);
   void absorb(Entry* into, Entry* from);
+  /// Removes a plane with its point owners and keyframe links; records it in update->removed.
+  void erase(PlaneId id, PlaneMapUpdate* update);
   /// Moves one plane through S (normal, offset, boundary, points; version + 1).
   void transform(Entry* entry, const Sim3& S);
 

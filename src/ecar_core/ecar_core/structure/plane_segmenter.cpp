@@ -61,6 +61,25 @@ std::vector<int> largestCluster(const std::vector<Eigen::Vector3d>& points,
   return best;
 }
 
+// Whether a plane with unit normal n through `points` is the depth noise of
+// one of the planes found before: nearly parallel to it (|cos| of the normals
+// at least cos_parallel) with the points' median distance to it below
+// min_separation.
+bool isNoiseOf(const std::vector<PlaneObservation>& found, const Eigen::Vector3d& n,
+               const std::vector<Eigen::Vector3d>& points, double cos_parallel,
+               double min_separation, std::vector<double>* distances) {
+  for (const PlaneObservation& earlier : found) {
+    if (std::abs(earlier.normal.dot(n)) < cos_parallel) continue;
+    distances->clear();
+    for (const auto& p : points)
+      distances->push_back(std::abs(earlier.normal.dot(p) + earlier.offset));
+    auto mid = distances->begin() + distances->size() / 2;
+    std::nth_element(distances->begin(), mid, distances->end());
+    if (*mid < min_separation) return true;
+  }
+  return false;
+}
+
 }  // namespace
 
 PlaneSegmenter::PlaneSegmenter(const PlaneConfig& config) : config_(config) { config_.validate(); }
@@ -89,6 +108,8 @@ std::vector<PlaneObservation> PlaneSegmenter::segment(const PlaneKeyFrameInput& 
   std::mt19937 rng(cfg.seed ^ (input.keyframe.value * 0x9E3779B9u));
   std::vector<PlaneObservation> out;
   const double thr = cfg.distance_threshold;
+  const double cos_parallel = std::cos(cfg.merge_angle_deg * M_PI / 180.0);
+  std::vector<double> distances;  // isNoiseOf's scratch
   auto inliersOf = [&](const Eigen::Vector3d& n, double d) {
     std::vector<int> in;
     for (int i : remaining) {
@@ -146,6 +167,8 @@ std::vector<PlaneObservation> PlaneSegmenter::segment(const PlaneKeyFrameInput& 
     std::vector<Eigen::Vector3d> sel;
     for (int i : kept) sel.push_back(pts[i]);
     fitPlane(sel, &obs.normal, &obs.offset);
+    // The noise of a plane found before (its points are left out with it).
+    if (isNoiseOf(out, obs.normal, sel, cos_parallel, cfg.min_separation, &distances)) continue;
     if (obs.normal.dot(input.camera_center_w) + obs.offset < 0.0) {
       obs.normal = -obs.normal;
       obs.offset = -obs.offset;

@@ -34,6 +34,8 @@ class PlaneSegmenter {
 
   /// The planes in input.points, largest first. Each plane's inliers are removed
   /// before the next is searched, so a point supports at most one observation.
+  /// A plane nearly parallel to one found before it and closer to it than
+  /// min_separation is that one's depth noise: left out, with its points.
   /// Deterministic for a given input, config and keyframe id. Throws ecar::Error
   /// when up_w or the camera centre is not finite or up_w is zero.
   std::vector<PlaneObservation> segment(const PlaneKeyFrameInput& input) const;

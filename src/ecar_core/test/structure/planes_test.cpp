@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <map>
+#include <memory>
 #include <random>
 #include <set>
 #include <thread>
@@ -250,6 +251,40 @@ TEST(PlanesTest, FarCoplanarStraysAreNotPartOfThePlane) {
   for (const auto& v : obs[0].boundary) EXPECT_LT(v.x(), 3.01);
 }
 
+TEST(PlanesTest, TheDepthNoiseAboveAFloorIsNoSecondFloor) {
+  // A 4 x 4 m floor (1.5 cm noise) and, over the whole of it, the tail that
+  // monocular depth noise puts on the cameras' side: 250 points 4-14 cm up.
+  Cloud cloud = makeCloud(
+      {{Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(4, 0, 0), Eigen::Vector3d(0, 4, 0), 1500}}, 250,
+      Eigen::Vector3d(0, 0, 0.04), Eigen::Vector3d(4, 4, 0.14), 0.015, 1, 3);
+  const auto in = inputOf(1, cloud, Eigen::Vector3d(2, 2, 1.5), Eigen::Vector3d::UnitZ());
+  PlaneConfig config;
+  const auto obs = PlaneSegmenter(config).segment(in);
+  ASSERT_EQ(obs.size(), 1u);
+  EXPECT_EQ(obs[0].label, PlaneLabel::kFloor);
+  EXPECT_NEAR(obs[0].offset, 0.0, 0.005);
+  // Without the rule the tail is a second floor a few cm above the first.
+  config.min_separation = 1e-3;
+  const auto ghost = PlaneSegmenter(config).segment(in);
+  ASSERT_EQ(ghost.size(), 2u);
+  EXPECT_EQ(ghost[1].label, PlaneLabel::kFloor);
+  EXPECT_GT(-ghost[1].offset, 0.05);
+}
+
+TEST(PlanesTest, AStepAboveTheFloorIsItsOwnPlane) {
+  // The same floor with a 1.5 x 1.5 m platform 20 cm up, above min_separation.
+  const Cloud cloud = makeCloud(
+      {{Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(4, 0, 0), Eigen::Vector3d(0, 4, 0), 1500},
+       {Eigen::Vector3d(1, 1, 0.2), Eigen::Vector3d(1.5, 0, 0), Eigen::Vector3d(0, 1.5, 0), 300}},
+      0, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), 0.01, 1, 4);
+  const auto obs = PlaneSegmenter{PlaneConfig()}.segment(
+      inputOf(1, cloud, Eigen::Vector3d(2, 2, 1.5), Eigen::Vector3d::UnitZ()));
+  ASSERT_EQ(obs.size(), 2u);
+  EXPECT_NEAR(obs[0].offset, 0.0, 0.005);
+  EXPECT_NEAR(obs[1].offset, -0.2, 0.005);
+  EXPECT_GE(purity(obs[1], cloud, 1), 0.95);
+}
+
 // ---------------------------------------------------------------- PlaneMap
 
 /// A floor patch x in [x0, x1], y in [0, 2.4] at height z, ids from first_id.
@@ -324,6 +359,93 @@ TEST(PlaneMapTest, ParallelPlaneIsNotMerged) {
   EXPECT_EQ(map.plane(u1.created[0])->version, 1u);
   EXPECT_NEAR(map.plane(u2.created[0])->offset, -0.3, 0.005);
   EXPECT_EQ(map.plane(u2.created[0])->label, PlaneLabel::kFloor);
+}
+
+/// `cloud` with its points moved by `shift` (bundle adjustment moved them).
+Cloud moved(Cloud cloud, const Eigen::Vector3d& shift) {
+  for (auto& p : cloud.points) p.p_w += shift;
+  return cloud;
+}
+
+/// `a` and `b` in one input (a keyframe seeing both).
+Cloud both(const Cloud& a, const Cloud& b) {
+  Cloud c = a;
+  c.points.insert(c.points.end(), b.points.begin(), b.points.end());
+  c.patch_of.insert(b.patch_of.begin(), b.patch_of.end());
+  return c;
+}
+
+/// A floor seen by keyframe 1 and a floor patch `height` up found alone by
+/// keyframe 2 (too far to join the floor).
+struct FloorAndPatch {
+  PlaneMap map{PlaneConfig()};
+  PlaneSegmenter segmenter{PlaneConfig()};
+  Cloud floor, patch;
+  PlaneId floor_id, patch_id;
+
+  PlaneMapUpdate see(uint32_t keyframe, const Cloud& cloud) {
+    return addKeyFrame(&map, segmenter, keyframe, cloud, Eigen::Vector3d(1, 1.2, 1.5));
+  }
+};
+
+std::unique_ptr<FloorAndPatch> floorAndPatch(double height) {
+  auto r = std::make_unique<FloorAndPatch>();
+  r->floor = floorCloud(0.0, 4.0, 0.0, 300, 1, 1);
+  r->patch = floorCloud(1.0, 3.0, height, 80, 1000, 2);
+  r->floor_id = r->see(1, r->floor).created.at(0);
+  r->patch_id = r->see(2, r->patch).created.at(0);
+  EXPECT_EQ(r->map.size(), 2u);
+  return r;
+}
+
+TEST(PlaneMapTest, APlaneWhosePointsMovedFollowsThemUnseen) {
+  const auto r = floorAndPatch(0.3);
+  const PlaneId b = r->patch_id;
+  const uint32_t version = r->map.plane(b)->version;
+  // Keyframe 3 sees the floor again and 30 of the platform's points, 5 cm
+  // lower: too few for an observation, the platform is not seen.
+  Cloud some = r->patch;
+  some.points.resize(30);
+  const auto u = r->see(3, both(r->floor, moved(some, Eigen::Vector3d(0, 0, -0.05))));
+  EXPECT_TRUE(u.removed.empty());
+  EXPECT_NE(std::find(u.updated.begin(), u.updated.end(), b), u.updated.end());
+  EXPECT_EQ(r->map.planesOfKeyFrame(KeyFrameId(3)), std::vector<PlaneId>{r->floor_id});
+  // Least squares: through the centroid of its points, 30 of them 5 cm lower.
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& p : r->patch.points) centroid += p.p_w;
+  centroid = centroid / 80.0 - Eigen::Vector3d(0, 0, 0.05 * 30 / 80);
+  EXPECT_NEAR(r->map.plane(b)->signedDistance(centroid), 0.0, 1e-6);
+  EXPECT_NEAR(r->map.plane(b)->offset, -0.28, 0.02);
+  EXPECT_EQ(r->map.plane(b)->num_points, 80u);
+  EXPECT_GT(r->map.plane(b)->version, version);
+  EXPECT_NEAR(r->map.plane(r->floor_id)->offset, 0.0, 0.005);
+  // Points moved by less than distance_threshold / 4 leave it as it is.
+  const uint32_t now = r->map.plane(b)->version;
+  r->see(4, both(r->floor, moved(some, Eigen::Vector3d(0, 0, -0.055))));
+  EXPECT_EQ(r->map.plane(b)->version, now);
+}
+
+TEST(PlaneMapTest, APlaneWhosePointsMovedOntoTheFloorBecomesTheFloor) {
+  // A "second floor" 10 cm up (bad depth from one keyframe) whose points
+  // bundle adjustment moved down onto the floor: one floor.
+  const auto r = floorAndPatch(0.1);
+  const auto u = r->see(3, both(r->floor, moved(r->patch, Eigen::Vector3d(0, 0, -0.1))));
+  EXPECT_EQ(u.removed, std::vector<PlaneId>{r->patch_id});
+  ASSERT_EQ(r->map.size(), 1u);
+  EXPECT_EQ(r->map.plane(r->floor_id)->num_points, 380u);
+  EXPECT_EQ(r->map.planeOfPoint(MapPointId(1000)), r->floor_id);
+  EXPECT_NEAR(r->map.plane(r->floor_id)->offset, 0.0, 0.005);
+}
+
+TEST(PlaneMapTest, APlaneWhosePointsAllMovedAwayGoes) {
+  // 30 cm down: too far to stay on their plane, which is left with none.
+  const auto r = floorAndPatch(0.3);
+  const auto u = r->see(3, both(r->floor, moved(r->patch, Eigen::Vector3d(0, 0, -0.3))));
+  EXPECT_EQ(u.removed, std::vector<PlaneId>{r->patch_id});
+  EXPECT_FALSE(r->map.contains(r->patch_id));
+  EXPECT_FALSE(r->map.planeOfPoint(MapPointId(1000)).has_value());
+  EXPECT_TRUE(r->map.planesOfKeyFrame(KeyFrameId(2)).empty());
+  EXPECT_EQ(r->map.size(), 1u);
 }
 
 TEST(PlaneMapTest, RefitTakesAdjustedPointsAndFusesPlanesThatBecameOne) {
@@ -546,6 +668,9 @@ TEST(PlanesTest, ConfigValidationNamesTheKey) {
   c = PlaneConfig();
   c.distance_threshold = std::nan("");
   EXPECT_THROW(PlaneSegmenter{c}, Error);
+  c = PlaneConfig();
+  c.min_separation = 0.0;
+  EXPECT_THROW(c.validate(), Error);
   EXPECT_THROW(upFromGravity(SE3::Identity(), Eigen::Vector3d::Zero()), Error);
   PlaneSegmenter segmenter{PlaneConfig()};
   PlaneKeyFrameInput in;
