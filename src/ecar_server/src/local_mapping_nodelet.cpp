@@ -86,9 +86,12 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
     }
     NODELET_INFO(
         "map %u corrected: %zu keyframes, %zu points, %zu planes, %zu objects moved, %zu "
-        "planes fused or emptied (grid links of %zu keyframes re-cast, %zu cells) in %.1f ms",
+        "planes fused or emptied (their points: %zu live, %zu fused, %zu gone; grid links of %zu "
+        "keyframes re-cast, %zu cells) in %.1f ms",
         report.map.value, report.keyframes, report.points, report.planes, report.objects,
-        report.planes_removed, report.keyframes_recast, report.keyframe_cells, report.milliseconds);
+        report.planes_removed, report.plane_points_live, report.plane_points_fused,
+        report.plane_points_gone, report.keyframes_recast, report.keyframe_cells,
+        report.milliseconds);
   }
 
  private:

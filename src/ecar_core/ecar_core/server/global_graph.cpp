@@ -238,15 +238,23 @@ MapCorrectionReport GlobalGraph::applyMapCorrection(MapId map_id, const MapCorre
           return std::nullopt;
         });
     {
-      // The planes follow their points' adjusted positions exactly, and
-      // planes that are one now (a merge's two floors) become one.
+      // The planes follow their points' adjusted positions exactly (a point
+      // fused into another, as a merge's seam does, by the one it became),
+      // and planes that are one now (a merge's two floors) become one.
       auto lock = slam->map().readLock();
+      const Map& map = slam->map();
       report.planes_removed =
           planes_
               .refit(map_id,
                      [&](MapPointId id) -> std::optional<Eigen::Vector3d> {
-                       const MapPoint* p = slam->map().point(id);
-                       return p ? std::optional<Eigen::Vector3d>(p->p_w) : std::nullopt;
+                       const MapPointId live = map.livePoint(id);
+                       const MapPoint* p = map.point(live);
+                       if (!p) {
+                         ++report.plane_points_gone;
+                         return std::nullopt;
+                       }
+                       ++(live == id ? report.plane_points_live : report.plane_points_fused);
+                       return p->p_w;
                      })
               .removed.size();
     }

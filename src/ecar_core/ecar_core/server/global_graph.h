@@ -86,6 +86,9 @@ struct MapCorrectionReport {
   MapId map;
   size_t keyframes = 0, points = 0, planes = 0, objects = 0;
   size_t planes_removed = 0;  ///< planes fused into another or left without points (refit)
+  /// The planes' points at the refit: live, fused into another point (taken
+  /// at that one's position), gone from the SLAM map (kept where they were).
+  size_t plane_points_live = 0, plane_points_fused = 0, plane_points_gone = 0;
   size_t keyframes_recast = 0, keyframe_cells = 0;  ///< grid links re-made (moved > 1/4 cell)
   double milliseconds = 0.0;
 };

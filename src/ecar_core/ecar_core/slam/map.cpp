@@ -198,6 +198,35 @@ void Map::replacePoint(MapPointId old_id, MapPointId new_id) {
   new_p->found += old_p->found;
   points_.erase(old_id);
   updatePointStatistics(new_id);
+  recordReplacement(old_id, new_id);
+}
+
+void Map::recordReplacement(MapPointId old_id, MapPointId new_id) {
+  if (replaced_.emplace(old_id, new_id).second) replaced_order_.push_back(old_id);
+  while (replaced_order_.size() > kMaxReplacements) {
+    replaced_.erase(replaced_order_.front());
+    replaced_order_.pop_front();
+  }
+}
+
+MapPointId Map::livePoint(MapPointId id) const {
+  // A chain is as long as the fusions one point went through; bounded anyway
+  // (and against a cycle, which replacePoint cannot make).
+  for (int hop = 0; hop < 64; ++hop) {
+    if (points_.count(id)) return id;
+    const auto it = replaced_.find(id);
+    if (it == replaced_.end()) return MapPointId();
+    id = it->second;
+  }
+  return MapPointId();
+}
+
+void Map::adoptReplacements(Map* other) {
+  for (const MapPointId old_id : other->replaced_order_) {
+    recordReplacement(old_id, other->replaced_.at(old_id));
+  }
+  other->replaced_.clear();
+  other->replaced_order_.clear();
 }
 
 void Map::updatePointStatistics(MapPointId pid) {
@@ -357,8 +386,12 @@ void Map::setCounters(KeyFrameId next_keyframe, MapPointId next_point, uint32_t 
 void Map::replaceWith(Map&& other) {
   keyframes_ = std::move(other.keyframes_);
   points_ = std::move(other.points_);
+  replaced_ = std::move(other.replaced_);
+  replaced_order_ = std::move(other.replaced_order_);
   other.keyframes_.clear();
   other.points_.clear();
+  other.replaced_.clear();
+  other.replaced_order_.clear();
   next_keyframe_ = other.next_keyframe_;
   next_point_ = other.next_point_;
   metric_ = other.metric_;
@@ -368,6 +401,8 @@ void Map::replaceWith(Map&& other) {
 void Map::clear() {
   keyframes_.clear();
   points_.clear();
+  replaced_.clear();
+  replaced_order_.clear();
   metric_ = false;
   ++epoch_;
 }

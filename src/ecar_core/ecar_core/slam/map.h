@@ -11,6 +11,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -92,6 +93,13 @@ class Map {
   size_t numPoints() const { return points_.size(); }
   std::vector<KeyFrameId> keyframeIds() const;
   std::vector<MapPointId> pointIds() const;
+  /// The live point that `id` became: itself when live, the point it was
+  /// fused into (replacePoint, followed through later fusions) when it was
+  /// one of the last kMaxReplacements fused, otherwise invalid (culled,
+  /// or fused too long ago). Lets what refers to map points by id (planes)
+  /// follow a fusion instead of losing the point.
+  MapPointId livePoint(MapPointId id) const;
+  static constexpr size_t kMaxReplacements = 1 << 16;
   /// The `n` neighbours sharing the most points (at least `min_weight`), best first.
   std::vector<KeyFrameId> bestCovisible(KeyFrameId id, size_t n, int min_weight = 1) const;
   /// Epoch of the map: changes on reset/load (devices drop what they hold).
@@ -124,7 +132,8 @@ class Map {
   void erasePoint(MapPointId pid);
   /// Marks a keyframe bad: removes its observations and covisibility links.
   void eraseKeyFrame(KeyFrameId kid);
-  /// Replaces `old_id` by `new_id` in every keyframe that observes it.
+  /// Replaces `old_id` by `new_id` in every keyframe that observes it, and
+  /// records the replacement for livePoint().
   void replacePoint(MapPointId old_id, MapPointId new_id);
   /// Recomputes the representative descriptor, normal and distance range.
   void updatePointStatistics(MapPointId pid);
@@ -151,12 +160,20 @@ class Map {
   /// moves the epoch past both maps' epochs, so devices drop what they hold.
   /// Hold writeLock on this map; `other` must not be shared.
   void replaceWith(Map&& other);
+  /// Takes `other`'s record of fused points (a merge moving its points here).
+  void adoptReplacements(Map* other);
 
  private:
+  void recordReplacement(MapPointId old_id, MapPointId new_id);
+
   ScaleInfo scale_;
   mutable std::shared_mutex mutex_;
   std::unordered_map<KeyFrameId, KeyFrame> keyframes_;
   std::unordered_map<MapPointId, MapPoint> points_;
+  // Fused point -> the point it was fused into; the oldest forgotten first
+  // (bounded: fusions go on as long as the map is mapped).
+  std::unordered_map<MapPointId, MapPointId> replaced_;
+  std::deque<MapPointId> replaced_order_;
   uint32_t next_keyframe_ = 1, next_point_ = 1;
   uint32_t epoch_ = 1;
   bool metric_ = false;

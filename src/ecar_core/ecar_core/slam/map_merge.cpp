@@ -45,6 +45,7 @@ MergeResult mergeMaps(Map* into, Map* from, const Sim3& S,
   out.moved_points = points;
   out.correction.points_moved = points.size();
   into->setCounters(KeyFrameId(next_keyframe), MapPointId(next_point), into->epoch());
+  into->adoptReplacements(from);
   from->clear();
 
   // The seam: one point per physical point, the better observed one kept.

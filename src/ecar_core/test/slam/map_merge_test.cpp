@@ -188,6 +188,36 @@ Sim3 perturbation(double deg, const Eigen::Vector3d& t, double scale) {
   return P;
 }
 
+// What refers to points by id (planes) finds the point each one became: fused
+// at the seam, or fused in the merged-in map before the merge.
+TEST(MapMergeTest, PointsFusedBeforeAndAtTheMergeAreFollowedInTheMergedMap) {
+  const std::unique_ptr<SlamSystem> slam = corridorMap();
+  Map& a = slam->map();
+  auto lock_a = a.writeLock();
+  Sim3 T;
+  T.t = Eigen::Vector3d(1.0, 0.0, 0.0);
+  const uint32_t offset = 100000;
+  std::unique_ptr<Map> b = copyOf(a, offset, T);
+  const std::vector<MapPointId> ids = a.pointIds();
+  ASSERT_GE(ids.size(), 2u);
+  const MapPointId p(ids[0].value + offset), q(ids[1].value + offset);
+  b->replacePoint(p, q);  // b's own fusion, before the merge
+  std::vector<std::pair<MapPointId, MapPointId>> duplicates;
+  for (const MapPointId id : ids) duplicates.emplace_back(MapPointId(id.value + offset), id);
+  const MergeResult r = mergeMaps(&a, b.get(), T.inverse(), duplicates);
+  EXPECT_EQ(r.points_fused, ids.size() - 1);  // p was gone already
+  const MapPointId q_now = a.livePoint(q);
+  ASSERT_TRUE(q_now.valid());
+  EXPECT_EQ(a.livePoint(p), q_now);
+  for (const auto& [theirs, mine] : duplicates) {
+    if (theirs == p) continue;
+    const MapPointId now = a.livePoint(theirs);
+    ASSERT_TRUE(now.valid()) << theirs;
+    EXPECT_EQ(a.livePoint(mine), now) << mine;
+  }
+  EXPECT_FALSE(b->livePoint(p).valid());  // the record left with the points
+}
+
 TEST(SeamRefitTest, ReprojectionsAcrossTheSeamCorrectTheMergesSimilarity) {
   PerturbedMerge m(perturbation(1.0, Eigen::Vector3d(0.05, -0.03, 0.02), 1.01));
   const auto [before_m, before_deg] = m.twinError();

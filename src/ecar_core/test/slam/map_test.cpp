@@ -1,5 +1,6 @@
 // The map's bookkeeping: observations recorded on both sides, covisibility,
-// erasing and replacing points, and the consistency check itself.
+// erasing and replacing points (and following a fused point to the one it
+// became), and the consistency check itself.
 #include "ecar_core/slam/map.h"
 
 #include <gtest/gtest.h>
@@ -110,6 +111,49 @@ TEST_F(MapTest, ConsistencyCheckNamesWhatIsBroken) {
   map.mutableKeyFrame(k2)->points[6] = MapPointId();
   map.mutablePoint(p)->p_w.x() = std::nan("");
   EXPECT_NE(map.checkConsistency().find("non-finite"), std::string::npos);
+}
+
+TEST_F(MapTest, AFusedPointIsFollowedToThePointItBecame) {
+  auto lock = map.writeLock();
+  auto point = [&](double x, int idx) {
+    const MapPointId p = map.addPoint(Eigen::Vector3d(x, 0, 2), k1);
+    map.addObservation(p, k1, idx);
+    map.addObservation(p, k2, idx);
+    return p;
+  };
+  const MapPointId a = point(0.0, 1), b = point(0.01, 2), c = point(0.02, 3);
+  EXPECT_EQ(map.livePoint(a), a);
+  map.replacePoint(a, b);
+  map.replacePoint(b, c);  // fused again: a's chain goes on to c
+  EXPECT_EQ(map.livePoint(a), c);
+  EXPECT_EQ(map.livePoint(b), c);
+  map.erasePoint(c);  // culled: nothing to follow
+  EXPECT_FALSE(map.livePoint(a).valid());
+  EXPECT_FALSE(map.livePoint(MapPointId(999)).valid());
+}
+
+TEST_F(MapTest, TheRecordOfFusedPointsIsBounded) {
+  auto lock = map.writeLock();
+  auto point = [&](int idx) {  // at a keypoint that no live point holds
+    const MapPointId p = map.addPoint(Eigen::Vector3d(0, 0, 2), k1);
+    map.addObservation(p, k1, idx);
+    map.addObservation(p, k2, idx);
+    return p;
+  };
+  const MapPointId first = point(1);
+  MapPointId keep = point(2);
+  map.replacePoint(first, keep);
+  // kMaxReplacements fusions later the first one is forgotten, the last not.
+  MapPointId last;
+  for (size_t i = 0; i < Map::kMaxReplacements; ++i) {
+    last = keep;
+    keep = point(1 + i % 2);
+    map.replacePoint(last, keep);
+  }
+  EXPECT_EQ(map.numPoints(), 1u);
+  EXPECT_FALSE(map.livePoint(first).valid());
+  EXPECT_EQ(map.livePoint(last), keep);
+  EXPECT_EQ(map.checkConsistency(), "");
 }
 
 }  // namespace
