@@ -415,7 +415,7 @@ TEST(PlaneMapTest, APlaneWhosePointsMovedFollowsThemUnseen) {
   for (const auto& p : r->patch.points) centroid += p.p_w;
   centroid = centroid / 80.0 - Eigen::Vector3d(0, 0, 0.05 * 30 / 80);
   EXPECT_NEAR(r->map.plane(b)->signedDistance(centroid), 0.0, 1e-6);
-  EXPECT_NEAR(r->map.plane(b)->offset, -0.28, 0.02);
+  EXPECT_LT(angleBetween(r->map.plane(b)->normal, Eigen::Vector3d::UnitZ()), 3 * kDeg);
   EXPECT_EQ(r->map.plane(b)->num_points, 80u);
   EXPECT_GT(r->map.plane(b)->version, version);
   EXPECT_NEAR(r->map.plane(r->floor_id)->offset, 0.0, 0.005);
