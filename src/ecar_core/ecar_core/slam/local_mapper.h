@@ -41,6 +41,12 @@ class LocalMapper {
               KeypointIndex* keypoints = nullptr);
   ~LocalMapper();
   void insert(KeyFrameId kf);
+  /// Bundle-adjusts `kf` and its covisible window now, on the caller's thread
+  /// (ORB-SLAM's adjustment of a new two-view map: the tracker answers the
+  /// initialising upload from the adjusted map, not from the raw two-view
+  /// reconstruction that the mapper would move a moment later). Takes the
+  /// map's locks; a no-op when the map changed while it solved.
+  void adjustNow(KeyFrameId kf) { localBundleAdjustment(kf); }
   /// Maps every queued keyframe now (synchronous mode).
   void processPending();
   void startThread();

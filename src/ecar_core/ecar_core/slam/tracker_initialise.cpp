@@ -197,10 +197,20 @@ bool Tracker::initialise(TrackResult* result) {
     }
   }
   lock.unlock();
+  // The first answer comes from the adjusted two-view map: the devices that
+  // receive it track on its points until their next graph, and the raw
+  // reconstruction moved by up to 7 cm (corridor, two devices) in the
+  // mapper's first adjustment of it a moment later.
+  mapper_->adjustNow(id2);
+  SE3 T_c2_w_adjusted = T_c2_w;
+  {
+    auto read = map_->readLock();
+    if (const KeyFrame* k2 = map_->keyframe(id2)) T_c2_w_adjusted = k2->T_c_w;
+  }
   index_->add(id1, init_frame.descriptors);
   if (keypoints_) keypoints_->add(id1, init_frame.descriptors, point_rows);
-  mapper_->insert(id2);  // refine the two-view map with BA and new points
-  T_c_w_ = T_c2_w;
+  mapper_->insert(id2);  // new points and the next adjustments
+  T_c_w_ = T_c2_w_adjusted;
   reference_kf_ = id2;
   local_keyframes_ = {id1, id2};
   frames_since_keyframe_ = 0;

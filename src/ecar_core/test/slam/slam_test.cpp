@@ -5,6 +5,7 @@
 #include <atomic>
 #include <chrono>
 #include <filesystem>
+#include <optional>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -161,6 +162,44 @@ TEST(SlamTest, OdometryGivesAMetricMap) {
   EXPECT_NEAR(S.scale, 1.0, 0.05);
   // Gravity-aligned: the map's z axis is up.
   EXPECT_GT((S.R * Eigen::Vector3d::UnitZ()).z(), 0.99);
+}
+
+// The initialising upload is answered from the adjusted two-view map (the
+// devices track on the points of that answer until their next graph): a
+// second adjustment of the pair moves its newer keyframe by less than 0.2
+// mm (measured: not at all), where the raw reconstruction moved 1.1 mm.
+TEST(SlamTest, TheInitialisingUploadIsAnsweredFromTheAdjustedMap) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "device_0", 4, 20);
+  SlamConfig config;
+  config.synchronous_mapping = false;  // the mapper's own work does not run in track()
+  SlamSystem slam(renderer.camera(), config);
+  std::optional<TrackResult> init;
+  for (const auto& u : uploads) {
+    TrackResult r = slam.track(DeviceId(1), u.image, u.motion.timestamp, u.frame,
+                               u.motion.gravity_c, u.motion.T_o_c);
+    if (r.initialised) {
+      init = std::move(r);
+      break;
+    }
+  }
+  ASSERT_TRUE(init) << "never initialised";
+  ASSERT_TRUE(init->new_keyframe);
+  const KeyFrameId kf = *init->new_keyframe;
+  SE3 T_c_w;
+  {
+    auto lock = slam.map().readLock();
+    ASSERT_EQ(slam.map().numKeyFrames(), 2u);
+    T_c_w = slam.map().keyframe(kf)->T_c_w;
+  }
+  EXPECT_LT((init->T_w_c.translation() - T_c_w.inverse().translation()).norm(), 1e-9)
+      << "the answer is not the keyframe's pose";
+  slam.mapper().adjustNow(kf);
+  auto lock = slam.map().readLock();
+  const SE3 T_c_w_again = slam.map().keyframe(kf)->T_c_w;
+  EXPECT_LT((T_c_w_again.inverse().translation() - T_c_w.inverse().translation()).norm(), 2e-4)
+      << "the two-view map was answered before its adjustment";
 }
 
 TEST(SlamTest, TwoDevicesEndInOneMap) {
