@@ -223,12 +223,19 @@ class PlanesTest(unittest.TestCase):
                   dict(id=2, label=Plane.WALL, points=80, **to_map([0, 1, 0], [6.0, 2.38, 1.0])),
                   dict(id=3, label=Plane.CEILING, points=50, **to_map([0, 0, -1], [7.0, 1.0, 2.7])),
                   dict(id=4, label=Plane.FLOOR, points=40, **to_map([0, 0, 1], [10.5, 1.0, 2.0])),
+                  # A second floor 10 cm above the floor: labelled right, off its surface.
+                  dict(id=6, label=Plane.FLOOR, points=45, **to_map([0, 0, 1], [8.0, 1.0, 0.1])),
                   # A wall labelled floor: wrong.
                   dict(id=5, label=Plane.FLOOR, points=30, **to_map([0, -1, 0], [12.0, 0.0, 1.0]))]
         r = plane_metrics.check_planes(planes, CORRIDOR, sim)
         rows = {d["id"]: d for d in r["detail"]}
-        self.assertEqual(r["planes"], 5)
-        self.assertEqual(r["labelled_right"], 4)
+        self.assertEqual(r["planes"], 6)
+        self.assertEqual(r["labelled_right"], 5)
+        self.assertEqual(r["on_surface"], 4)
+        self.assertEqual(r["off_surface"], [6])
+        self.assertAlmostEqual(rows[6]["distance_m"], 0.1, places=6)
+        self.assertTrue(rows[6]["right"] and not rows[6]["on_surface"])
+        self.assertTrue(rows[1]["on_surface"] and rows[4]["on_surface"])
         self.assertEqual(rows[1]["true_surface"], "floor")
         self.assertAlmostEqual(rows[1]["distance_m"], 0.01, places=6)
         self.assertEqual(rows[2]["true_surface"], "wall")

@@ -3,7 +3,9 @@
 Each plane the devices received (map frame) is put into the dataset world with the
 map -> world similarity of the session (see `alignment.robust_similarity`) and matched to the
 nearest parallel face of the scene's boxes: is its label (ecar_msgs/Plane FLOOR, WALL, ...)
-right, how far is it from that face, at what angle. Needs no running ROS
+right, how far is it from that face, at what angle, and does it lie on it (within
+`max_distance_m`: a plane labelled right but 10 cm above the floor, a "second floor", is
+counted as off its surface, not hidden among the right ones). Needs no running ROS
 (test/vo_metrics_test.py).
 """
 
@@ -40,10 +42,11 @@ def scene_faces(scene):
     return faces
 
 
-def check_planes(planes, scene, sim, max_angle_deg=10.0):
+def check_planes(planes, scene, sim, max_angle_deg=10.0, max_distance_m=0.05):
     """Each server plane (dicts: id, label, normal, offset, centroid, points; map frame) put
     into the world and matched to the nearest parallel scene face: is its label right, how far
-    is it from the face, at what angle."""
+    is it from the face, at what angle. `on_surface` counts the planes labelled right within
+    max_distance_m of their face; `off_surface` lists the ids of the others labelled right."""
     faces = scene_faces(scene)
     rows = []
     for pl in sorted(planes, key=lambda p: p["id"]):
@@ -65,9 +68,14 @@ def check_planes(planes, scene, sim, max_angle_deg=10.0):
         accepted = {"object top": ("floor", "other"), "object wall": ("wall", "other"),
                     "object bottom": ("ceiling", "other")}.get(truth, (truth,))
         right = label in accepted
+        on_surface = right and best is not None and best[1] <= max_distance_m
         rows.append({"id": pl["id"], "label": label, "true_surface": truth, "right": right,
+                     "on_surface": on_surface,
                      "points": pl["points"],
                      "distance_m": round(best[1], 4) if best else None,
                      "angle_deg": round(best[2], 2) if best else None})
     return {"planes": len(rows), "labelled_right": sum(1 for r in rows if r["right"]),
+            "on_surface": sum(1 for r in rows if r["on_surface"]),
+            "off_surface": [r["id"] for r in rows if r["right"] and not r["on_surface"]],
+            "max_distance_m": max_distance_m,
             "found": sorted({r["true_surface"] for r in rows if r["right"]}), "detail": rows}

@@ -80,9 +80,14 @@ def print_summary(s, out):
                 fmt(o.get("send_ms_median")), fmt(o["download_ms_median"])))
     pl = s.get("planes")
     if pl:
-        log("planes: %d, labelled right %d (%s), %d removed by the server (fused), %d left in "
+        off = pl.get("off_surface", [])
+        log("planes: %d, labelled right %d (%s)%s, %d removed by the server (fused), %d left in "
             "merged maps; %s" % (
-            pl["planes"], pl["labelled_right"], ", ".join(pl["found"]), pl.get("removed", 0),
+            pl["planes"], pl["labelled_right"], ", ".join(pl["found"]),
+            ", %d of them more than %.0f cm off their surface (%s)" % (
+                len(off), 100 * pl.get("max_distance_m", 0.05),
+                ", ".join(map(str, off))) if off else "",
+            pl.get("removed", 0),
             pl.get("other_maps", 0),
             "; ".join("%d %s on %s %.1f cm %.1f deg" % (r["id"], r["label"], r["true_surface"],
                                                         100 * (r["distance_m"] or 0),
