@@ -63,10 +63,10 @@ class PlaneSegmentationNodelet : public nodelet::Nodelet {
       return;
     }
     NODELET_DEBUG(
-        "keyframe %u: %zu points, %zu planes found, %zu created, %zu updated; "
-        "segment %.1f ms, integrate %.1f ms",
+        "keyframe %u: %zu points, %zu planes found, %zu created, %zu updated, %zu removed, "
+        "%zu plane points culled since; segment %.1f ms, integrate %.1f ms",
         event.id.value, r.points, r.observations, r.update.created.size(), r.update.updated.size(),
-        r.segment_ms, r.integrate_ms);
+        r.update.removed.size(), r.points_gone, r.segment_ms, r.integrate_ms);
     NODELET_INFO_THROTTLE(5.0,
                           "planes: %zu in the map; keyframe %u: %zu points, %zu planes in "
                           "%.1f + %.1f ms (segment, integrate)",

@@ -53,6 +53,16 @@ KeyFramePlanes PlaneSegmentation::process(KeyFrameId keyframe,
     out.skipped = "a map was loaded meanwhile";
     return out;
   }
+  {
+    // The planes' points the SLAM map has culled or fused since (a few
+    // thousand lookups, well under a millisecond).
+    const std::vector<MapPointId> held = graph_->planes().pointsOfMap(map);
+    auto lock = slam->map().readLock();
+    for (const MapPointId id : held) {
+      if (!slam->map().point(id)) input.gone.push_back(id);
+    }
+  }
+  out.points_gone = input.gone.size();
   auto start = std::chrono::steady_clock::now();
   const std::vector<PlaneObservation> observations = segmenter_.segment(input);
   out.observations = observations.size();

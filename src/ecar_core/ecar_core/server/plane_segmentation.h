@@ -43,6 +43,7 @@ struct KeyFramePlanes {
   PlaneMapUpdate update;
   size_t points = 0;        ///< map points segmented
   size_t observations = 0;  ///< planes found in them
+  size_t points_gone = 0;   ///< points that left the planes (no longer in the SLAM map)
   double segment_ms = 0.0, integrate_ms = 0.0;
   /// Why nothing was done ("" when it was): the keyframe was culled, had no
   /// gravity, or a map was loaded meanwhile.

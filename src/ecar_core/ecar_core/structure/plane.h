@@ -66,6 +66,9 @@ struct PlaneKeyFrameInput {
   MapId map;  ///< the keyframe's map: its observations join planes of that map only
   /// The map points of the keyframe and of its covisible neighbours, each once.
   std::vector<PlanePoint> points;
+  /// Points held by the map's planes that the SLAM map no longer has (culled
+  /// as bad triangulations, or fused into another): they leave their planes.
+  std::vector<MapPointId> gone;
   Eigen::Vector3d camera_center_w = Eigen::Vector3d::Zero();  ///< map frame, m
   /// Up in the map frame (any length > 0; see upFromGravity). Not assumed to be +z.
   Eigen::Vector3d up_w = Eigen::Vector3d::UnitZ();

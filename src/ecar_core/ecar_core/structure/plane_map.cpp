@@ -184,6 +184,17 @@ PlaneMapUpdate PlaneMap::integrate(const PlaneKeyFrameInput& input,
   // drawn there.)
   const double moved_sq = std::pow(0.25 * config_.distance_threshold, 2);
   std::vector<PlaneId> moved;
+  // Points the SLAM map no longer has leave their planes, which are refitted
+  // (or go) below like planes whose points moved.
+  for (const MapPointId id : input.gone) {
+    const auto owner = point_owner_.find(id);
+    if (owner == point_owner_.end()) continue;
+    Entry& entry = planes_.at(owner->second);
+    if (entry.plane.map != input.map) continue;
+    entry.points.erase(id);
+    moved.push_back(owner->second);
+    point_owner_.erase(owner);
+  }
   for (const auto& p : input.points) {
     const auto owner = point_owner_.find(p.id);
     if (owner == point_owner_.end() || !p.p_w.allFinite()) continue;
@@ -376,6 +387,16 @@ std::vector<MapPointId> PlaneMap::pointsOfPlane(PlaneId id) const {
   return out;
 }
 
+std::vector<MapPointId> PlaneMap::pointsOfMap(MapId map) const {
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  std::vector<MapPointId> out;
+  out.reserve(point_owner_.size());
+  for (const auto& [point, plane] : point_owner_) {
+    if (planes_.at(plane).plane.map == map) out.push_back(point);
+  }
+  return out;
+}
+
 std::optional<PlaneId> PlaneMap::planeOfPoint(MapPointId point) const {
   std::shared_lock<std::shared_mutex> lock(mutex_);
   const auto it = point_owner_.find(point);
@@ -435,12 +456,18 @@ PlaneMapUpdate PlaneMap::refit(
   std::sort(ids.begin(), ids.end());
   for (const PlaneId id : ids) {
     Entry& e = planes_.at(id);
-    for (auto& [pid, p_w] : e.points) {
-      const std::optional<Eigen::Vector3d> p = position(pid);
-      if (p && p->allFinite()) p_w = *p;
+    for (auto it = e.points.begin(); it != e.points.end();) {
+      const std::optional<Eigen::Vector3d> p = position(it->first);
+      if (!p) {  // culled: no evidence of the plane any more
+        point_owner_.erase(it->first);
+        it = e.points.erase(it);
+        continue;
+      }
+      if (p->allFinite()) it->second = *p;
+      ++it;
     }
     refitGeometry(&e);
-    if (e.points.size() < 3) erase(id, &update);
+    if (static_cast<int>(e.points.size()) < config_.min_inliers) erase(id, &update);
   }
   // Planes that are one physical plane now: the lower id absorbs the higher.
   bool merged = true;

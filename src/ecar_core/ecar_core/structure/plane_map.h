@@ -58,7 +58,10 @@ class PlaneMap {
   /// points farther than keep_factor * distance_threshold, gets a new hull, label
   /// and version. A plane none of them joined but whose points in input.points
   /// moved (by more than distance_threshold / 4) is refitted as well, and goes
-  /// when fewer than min_inliers points stay. Two planes that now match are
+  /// when fewer than min_inliers points stay; so does a plane whose points in
+  /// input.gone left it (points the SLAM map culled are no evidence: a
+  /// "second floor" 13.5 cm up, fitted to noise points culled since, stood on
+  /// the wall's and the cabinet's bottom rows alone). Two planes that now match are
   /// merged (the lower id survives). Links the keyframe to the planes its
   /// observations joined.
   PlaneMapUpdate integrate(const PlaneKeyFrameInput& input,
@@ -81,6 +84,8 @@ class PlaneMap {
   std::vector<KeyFrameId> keyframesOfPlane(PlaneId id) const;
   /// A plane's inlier map points, by increasing id.
   std::vector<MapPointId> pointsOfPlane(PlaneId id) const;
+  /// Every point held by the planes of `map`, in no particular order.
+  std::vector<MapPointId> pointsOfMap(MapId map) const;
   /// The plane holding a map point, if any.
   std::optional<PlaneId> planeOfPoint(MapPointId point) const;
 
@@ -99,9 +104,9 @@ class PlaneMap {
   size_t moveMap(MapId from, MapId into, const Sim3& S);
   /// After a map was bundle-adjusted (a loop, a merge): the planes of `map`
   /// take their points' adjusted positions (`position`; nullopt: not in the
-  /// SLAM map any more (culled, fused), the point keeps its stored position)
-  /// and are refitted (labels kept; points that ended far from the plane
-  /// leave it, and a plane left with fewer than 3 points goes), then planes
+  /// SLAM map any more (culled), the point leaves its plane) and are refitted
+  /// (labels kept; points that ended far from the plane leave it, and a plane
+  /// left with fewer than min_inliers points goes), then planes
   /// of the map that now match (as in integrate) become one, the lower id
   /// surviving. Moving planes by their keyframes'
   /// corrections alone left a merged map's planes where the smaller map had

@@ -307,10 +307,17 @@ VoRequest registration(const VirtualObject& vo, const std::string& device = "dev
 }
 
 // Planes of keyframe 1 (a floor seen from x = 0) merged into the graph, as
-// plane segmentation would, and what it reports.
-KeyFramePlanes addFloor(GlobalGraph* graph, KeyFrameId id, const SE3& T_w_c) {
+// plane segmentation would, and what it reports. With `slam`, the floor's
+// points are made the map's points first (created by the keyframe), as a
+// map's plane points are: what refits planes after a correction reads them.
+KeyFramePlanes addFloor(GlobalGraph* graph, KeyFrameId id, const SE3& T_w_c,
+                        SlamSystem* slam = nullptr) {
   PlaneKeyFrameInput input = floorKeyFrame(id, T_w_c);
   input.map = MapId(1);  // the first map of the atlas
+  if (slam) {
+    auto lock = slam->map().writeLock();
+    for (PlanePoint& p : input.points) p.id = slam->map().addPoint(p.p_w, id);
+  }
   KeyFramePlanes out;
   out.keyframe = id;
   out.T_w_c = T_w_c;
@@ -471,7 +478,8 @@ TEST(GlobalGraphTest, AMapCorrectionMovesPlanesObjectsAndCells) {
       ASSERT_EQ(slam->map().addKeyFrame(std::move(kf)), KeyFrameId(1));
     }
     GridConnection grid(&graph, GridConnectionConfig());
-    ASSERT_GT(grid.linkKeyFrame(addFloor(&graph, KeyFrameId(1), lookingAlongX(0.0))), 0u);
+    ASSERT_GT(grid.linkKeyFrame(addFloor(&graph, KeyFrameId(1), lookingAlongX(0.0), slam.get())),
+              0u);
     const VoOutcome a = grid.apply(registration(lineAt(2.0)));
     ASSERT_TRUE(a.accepted) << a.reason;
     id = a.id;
