@@ -13,6 +13,7 @@ Each case takes about 20 s (2 cores). Results: build/test_results/e2e/python-run
 (counted by scripts/test.sh) unless --gtest_output=xml:FILE is given.
 """
 
+import csv
 import json
 import os
 import shutil
@@ -73,6 +74,18 @@ class RunSessionTest(unittest.TestCase):
             self.assertTrue(os.path.exists(os.path.join(out, name)), name)
         self.assertIn("[run_session] wrote %s/summary.json and %s/metrics.csv" % (out, out), lines)
         self.assertFalse(any("error" in line for line in lines), lines)
+        # CPU times, on each thread's own clock: every upload costs the server and the device
+        # some, and the server's stages run one after another within its wall time.
+        with open(os.path.join(out, "metrics.csv")) as f:
+            rows = list(csv.DictReader(f))
+        self.assertGreater(len(rows), 0)
+        for r in rows:
+            server_cpu, server = float(r["server_cpu_ms"]), float(r["server_ms"])
+            self.assertGreater(server_cpu, 0.0, r)
+            self.assertLessEqual(server_cpu, server + 0.5, r)
+            self.assertGreater(float(r["device_tracking_cpu_ms"]), 0.0, r)
+        self.assertGreater(summary["overall"]["server_cpu_ms_median"], 0.0)
+        self.assertTrue(any(line.startswith("[run_session] CPU time") for line in lines), lines)
 
     def test_light_devices(self):
         # Two light devices in one nodelet manager, no players: each plays its dataset's

@@ -137,10 +137,12 @@ ecar_msgs::RoundTripMetrics toMsg(const ecar_msgs::LocalGraph& graph, const Roun
   m.latency = seconds(trip.received - trip.sent);
   m.upload_time = seconds(graph.server_received - trip.sent);
   m.server_time = graph.server_time;
+  m.server_cpu_time = graph.server_cpu_time;
   m.receive_time = graph.receive_time;
   m.align_time = graph.tracking_time;
   m.download_time = seconds(trip.received - graph.server_sent);
   m.tracking_time_device = trip.tracking_time_device;
+  m.tracking_cpu_time_device = trip.tracking_cpu_time_device;
   return m;
 }
 

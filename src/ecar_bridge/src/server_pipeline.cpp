@@ -38,6 +38,7 @@ ecar_msgs::TrackedFrame toMsg(const ecar::TrackResult& result, const FrameMeta& 
   m.server_received = meta.server_received;
   m.receive_time = meta.receive_time;
   m.tracking_time = meta.tracking_time;
+  m.cpu_time = meta.cpu_time;
   m.map_epoch = result.map_epoch;
   m.map_id = result.map.value;
   m.reset = meta.reset;
@@ -80,6 +81,7 @@ ecar::TrackResult fromMsg(const ecar_msgs::TrackedFrame& msg, FrameMeta* meta) {
     meta->server_received = msg.server_received;
     meta->receive_time = msg.receive_time;
     meta->tracking_time = msg.tracking_time;
+    meta->cpu_time = msg.cpu_time;
     meta->reset = msg.reset;
   }
   return r;
@@ -152,6 +154,7 @@ void toMsg(const ecar::VisibleStructure& v, ecar_msgs::VisibleStructure* msg) {
   }
   msg->stale = v.stale;
   msg->grid_time = static_cast<float>(v.milliseconds / 1000.0);
+  msg->grid_cpu_time = static_cast<float>(v.cpu_ms / 1000.0);
 }
 
 ecar::VisibleStructure fromMsg(const ecar_msgs::VisibleStructure& msg) {
@@ -174,6 +177,7 @@ ecar::VisibleStructure fromMsg(const ecar_msgs::VisibleStructure& msg) {
   }
   v.stale = msg.stale;
   v.milliseconds = 1000.0 * msg.grid_time;
+  v.cpu_ms = 1000.0 * msg.grid_cpu_time;
   return v;
 }
 

@@ -169,12 +169,14 @@ TEST(RoundTripMetricsTest, LatencyPartsAndBytes) {
   g.server_sent = ros::Time(10, 30000000);
   g.server_time = 0.02f;
   g.tracking_time = 0.012f;
+  g.server_cpu_time = 0.011f;
   RoundTrip t;
   t.device_id = "device_0";
   t.bytes_up = 20000;
   t.sent = ros::Time(10, 0);
   t.received = ros::Time(10, 35000000);
   t.tracking_time_device = 0.008f;
+  t.tracking_cpu_time_device = 0.007f;
   const auto m = toMsg(g, t);
   EXPECT_EQ(m.frame_index, 16u);
   EXPECT_EQ(m.bytes_up, 20000u);
@@ -187,6 +189,8 @@ TEST(RoundTripMetricsTest, LatencyPartsAndBytes) {
   EXPECT_FLOAT_EQ(m.align_time, 0.012f);
   EXPECT_NEAR(m.download_time, 0.005, 1e-6);
   EXPECT_FLOAT_EQ(m.tracking_time_device, 0.008f);
+  EXPECT_FLOAT_EQ(m.tracking_cpu_time_device, 0.007f);
+  EXPECT_FLOAT_EQ(m.server_cpu_time, 0.011f);
   EXPECT_EQ(m.header.stamp, t.received);
   g.sync_mode = ecar_msgs::LocalGraph::SYNC_EDGESLAM;
   g.map_points.resize(7);

@@ -33,6 +33,7 @@ TEST(TrackedFrameTest, RoundTrips) {
   meta.upload_sent = ros::Time(100, 6);
   meta.server_received = ros::Time(100, 7);
   meta.tracking_time = 0.025f;
+  meta.cpu_time = 0.0125f;
   meta.reset = true;
   const ecar_msgs::TrackedFrame m = toMsg(r, meta);
   EXPECT_EQ(m.status, ecar_msgs::TrackedFrame::RELOCALISED);
@@ -56,6 +57,7 @@ TEST(TrackedFrameTest, RoundTrips) {
   EXPECT_EQ(meta2.upload_sent, meta.upload_sent);
   EXPECT_EQ(meta2.server_received, meta.server_received);
   EXPECT_FLOAT_EQ(meta2.tracking_time, meta.tracking_time);
+  EXPECT_FLOAT_EQ(meta2.cpu_time, meta.cpu_time);
   EXPECT_TRUE(meta2.reset);
   ecar_msgs::TrackedFrame bad = m;
   bad.point_ids.pop_back();
@@ -126,6 +128,7 @@ TEST(VisibleStructureTest, RoundTrips) {
   v.objects_computed = true;
   v.cells = {{1, 2, 3}, {-4, 5, 0}};
   v.milliseconds = 2.5;
+  v.cpu_ms = 1.25;
   ecar_msgs::VisibleStructure m;
   toMsg(v, &m);
   EXPECT_EQ(m.cells, (std::vector<int32_t>{1, 2, 3, -4, 5, 0}));
@@ -139,6 +142,7 @@ TEST(VisibleStructureTest, RoundTrips) {
   EXPECT_EQ(back.cells, v.cells);
   EXPECT_TRUE(back.objects_computed);
   EXPECT_NEAR(back.milliseconds, 2.5, 1e-4);
+  EXPECT_NEAR(back.cpu_ms, 1.25, 1e-4);
   m.cells.pop_back();
   EXPECT_THROW(fromMsg(m), ecar::Error);
 }

@@ -24,7 +24,6 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "ecar_core/common/error.h"
-#include "ecar_core/common/timing.h"
 #include "ecar_core/device/device_tracker.h"
 #include "ecar_core/eval/trajectory_eval.h"
 #include "ecar_core/sim/motion.h"
@@ -34,8 +33,6 @@
 #include "ecar_core/sync/local_graph_composer.h"
 
 namespace {
-
-using ecar::threadCpuMs;
 
 using ecar::percentile;
 
@@ -147,17 +144,15 @@ int run(const Args& args) {
         }
       }
     }
-    const double cpu0 = threadCpuMs();
     const ecar::DeviceTrackResult& t =
         device.track(images[i], motion[i].timestamp, static_cast<uint32_t>(i));
-    const double cpu = threadCpuMs() - cpu0;
     if (!graph_seen) continue;
     ++after_graph;
     if (t.state == ecar::TrackingState::kOk) ++tracked;
     total_ms.push_back(t.total_ms);
     orb_ms.push_back(t.orb_ms);
     track_ms.push_back(t.track_ms);
-    cpu_ms.push_back(cpu);
+    cpu_ms.push_back(t.cpu_ms);
   }
   if (total_ms.empty()) {
     std::fprintf(stderr, "ecar_bench_device: no local graph reached the device in %d frames\n",

@@ -271,6 +271,7 @@ void Device::onImage(const sensor_msgs::ImageConstPtr& msg) {
   const ecar::DeviceTrackResult& r = tracker_->track(gray, msg->header.stamp.toSec(), seq);
   if (uploaded && !pending_.empty() && pending_.back().frame_index == seq) {
     pending_.back().tracking_time = static_cast<float>(r.total_ms / 1000.0);
+    pending_.back().tracking_cpu_time = static_cast<float>(r.cpu_ms / 1000.0);
   }
   publishResult(msg->header, gray, r, uploaded);
   const double behind = (ros::Time::now() - msg->header.stamp).toSec();
@@ -468,6 +469,7 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
   trip.sent = it->sent;
   trip.received = received;
   trip.tracking_time_device = it->tracking_time;
+  trip.tracking_cpu_time_device = it->tracking_cpu_time;
   const ecar_msgs::RoundTripMetrics metrics = ecar_bridge::toMsg(*msg, trip);
   metrics_pub_.publish(metrics);
   global_metrics_pub_.publish(metrics);

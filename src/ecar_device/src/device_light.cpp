@@ -147,6 +147,7 @@ void Device::onLightTimer() {
         tracker_->track(light_gray_, header.stamp.toSec(), header.seq);
     if (uploaded && !pending_.empty() && pending_.back().frame_index == header.seq) {
       pending_.back().tracking_time = static_cast<float>(r.total_ms / 1000.0);
+      pending_.back().tracking_cpu_time = static_cast<float>(r.cpu_ms / 1000.0);
     }
     publishResult(header, light_gray_, r, uploaded);
     // The touches scripted up to this frame, at its pose (forwards only).

@@ -53,6 +53,7 @@ void ServerConfig::validate() const {
   if (!(odometry_sigma_min > 0.0 && odometry_sigma_min <= 1.0)) {
     fail("odometry_sigma_min", "must be in (0, 1] m");
   }
+  if (background_nice < 0 || background_nice > 19) fail("background_nice", "must be in [0, 19]");
   if (!(autosave_period >= 1.0 && autosave_period <= 86400.0)) {
     fail("autosave_period", "must be in [1, 86400] s");
   }
@@ -132,6 +133,7 @@ ecar::SlamConfig ServerConfig::slamConfig() const {
   c.loops.enabled = loop_closing;
   c.loops.min_inliers = loop_min_inliers;
   c.loops.global_ba = loop_global_ba;
+  c.background_nice = background_nice;
   c.synchronous_mapping = false;
   return c;
 }

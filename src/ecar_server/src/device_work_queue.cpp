@@ -2,11 +2,18 @@
 
 #include <algorithm>
 
+#include "ecar_core/common/thread_priority.h"
+
 namespace ecar_server {
 
 DeviceWorkQueue::DeviceWorkQueue(int workers, size_t capacity)
     : capacity_(std::max<size_t>(1, capacity)) {
-  for (int i = 0; i < std::max(1, workers); ++i) threads_.emplace_back([this] { run(); });
+  for (int i = 0; i < std::max(1, workers); ++i) {
+    threads_.emplace_back([this] {
+      ecar::nameThisThread("ecar_align");
+      run();
+    });
+  }
 }
 
 DeviceWorkQueue::~DeviceWorkQueue() {

@@ -22,6 +22,7 @@
 #include "ecar_bridge/server_pipeline.h"
 #include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_core/slam/atlas.h"
 #include "ecar_core/sync/local_graph_composer.h"
 #include "ecar_server/GraphPublisherConfig.h"
@@ -120,6 +121,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
   }
 
   void onVisible(const ecar_msgs::VisibleStructure::ConstPtr& msg) {
+    const double cpu_start = ecar::threadCpuMs();
     const ecar_msgs::TrackedFrame& frame_msg = msg->frame;
     const std::string& device = frame_msg.device_id;
     ecar::TrackResult frame;
@@ -198,6 +200,8 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
     out->tracking_time = frame_msg.tracking_time;
     out->server_sent = ros::Time::now();
     out->server_time = static_cast<float>((out->server_sent - frame_msg.server_received).toSec());
+    out->server_cpu_time = frame_msg.cpu_time + msg->grid_cpu_time +
+                           static_cast<float>((ecar::threadCpuMs() - cpu_start) / 1000.0);
     pub.publish(out);
   }
 

@@ -56,6 +56,7 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("loop_closing", &c.loop_closing);
   r.read("loop_min_inliers", &c.loop_min_inliers);
   r.read("loop_global_ba", &c.loop_global_ba);
+  r.read("background_nice", &c.background_nice);
   r.read("camera_tolerance", &c.camera_tolerance);
   r.read("several_maps", &c.several_maps);
   r.read("new_map_after_lost", &c.new_map_after_lost);

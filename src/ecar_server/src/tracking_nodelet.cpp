@@ -20,6 +20,7 @@
 #include "ecar_bridge/server_pipeline.h"
 #include "ecar_bridge/topics.h"
 #include "ecar_core/common/error.h"
+#include "ecar_core/common/timing.h"
 #include "ecar_server/device_work_queue.h"
 #include "ecar_server/ros_params.h"
 
@@ -127,6 +128,7 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
   // On a worker: decode, align, publish.
   void align(const std::string& device, const ecar_msgs::Upload::ConstPtr& msg,
              const ecar_bridge::UploadContent& content, const ros::Time& received) {
+    const double cpu_start = ecar::threadCpuMs();
     const std::optional<ecar::DeviceInfo> info = graph_->devices().device(device);
     if (!info) return;  // disconnected meanwhile
     const ecar::CameraPtr camera = graph_->camera(device);
@@ -171,6 +173,7 @@ class TrackingNodelet : public nodelet::Nodelet, public ecar::GraphListener {
     meta.tracking_time =
         std::chrono::duration<float>(std::chrono::steady_clock::now() - t0).count();
     meta.reset = content.reset;
+    meta.cpu_time = static_cast<float>((ecar::threadCpuMs() - cpu_start) / 1000.0);
     if (!result.message.empty()) {
       NODELET_DEBUG("device %s: frame %u: %s", device.c_str(), msg->frame_index,
                     result.message.c_str());

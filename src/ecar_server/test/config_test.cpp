@@ -32,6 +32,7 @@ TEST(ServerConfigTest, ShippedYamlHasOnlyKnownKeysWithTheDefaults) {
   EXPECT_EQ(c.grid.window, d.grid.window);
   EXPECT_EQ(c.vo_share, d.vo_share);
   EXPECT_EQ(c.vo.attach_mode, d.vo.attach_mode);
+  EXPECT_EQ(c.background_nice, d.background_nice);
 }
 
 TEST(ServerConfigTest, UnknownKeysAndWrongTypesAreNamed) {
@@ -97,6 +98,11 @@ TEST(ServerConfigTest, InvalidValuesNameTheirKey) {
   c = ServerConfig();
   c.odometry_sigma_min = 0.0;
   expectKey(c, "odometry_sigma_min");
+  c = ServerConfig();
+  c.background_nice = 20;
+  expectKey(c, "background_nice");
+  c.background_nice = 7;
+  EXPECT_EQ(c.slamConfig().background_nice, 7);
   EXPECT_FALSE(ServerConfig().slamConfig().synchronous_mapping);
 }
 

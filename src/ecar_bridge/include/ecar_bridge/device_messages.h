@@ -84,14 +84,15 @@ ecar_msgs::DeviceFrame toMsg(const std::string& device_id, const ros::Time& stam
 struct RoundTrip {
   std::string device_id;
   uint32_t bytes_up = 0;
-  ros::Time sent;                    ///< upload published (device clock)
-  ros::Time received;                ///< local graph received (device clock)
-  float tracking_time_device = 0.f;  ///< s, the device's tracking of the uploaded frame
+  ros::Time sent;                        ///< upload published (device clock)
+  ros::Time received;                    ///< local graph received (device clock)
+  float tracking_time_device = 0.f;      ///< s, the device's tracking of the uploaded frame
+  float tracking_cpu_time_device = 0.f;  ///< s of the device thread's CPU for that tracking
 };
 
 /// Metrics of the round trip that `graph` ends: bytes (wireBytes of the graph
 /// down), latency = received - sent, upload_time = server_received - sent,
-/// server_time and align_time (its tracking_time) from the graph,
+/// server_time, server_cpu_time and align_time (its tracking_time) from the graph,
 /// download_time = received - server_sent;
 /// points = points (ecar) or map_points (edgeslam).
 ecar_msgs::RoundTripMetrics toMsg(const ecar_msgs::LocalGraph& graph, const RoundTrip& trip);

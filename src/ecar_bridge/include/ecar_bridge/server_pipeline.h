@@ -31,6 +31,7 @@ struct FrameMeta {
   ros::Time server_received;   ///< server clock at reception
   float receive_time = 0.0f;   ///< seconds from reception to the start of alignment
   float tracking_time = 0.0f;  ///< seconds
+  float cpu_time = 0.0f;       ///< seconds of the aligning thread's CPU (TrackedFrame.cpu_time)
   bool reset = false;          ///< Upload.reset
 };
 

@@ -208,6 +208,7 @@ bool DeviceTracker::trackFrom(const SE3& T_c_w, double radius) {
 const DeviceTrackResult& DeviceTracker::track(const cv::Mat& image, double timestamp,
                                               uint32_t frame_index) {
   const auto t0 = std::chrono::steady_clock::now();
+  const double cpu0 = threadCpuMs();
   DeviceTrackResult& r = result_;
   r.frame_index = frame_index;
   r.matches = r.inliers = 0;
@@ -222,6 +223,7 @@ const DeviceTrackResult& DeviceTracker::track(const cv::Mat& image, double times
     has_velocity_ = false;
     r.state = state_;
     r.total_ms = msSince(t0);
+    r.cpu_ms = threadCpuMs() - cpu0;
     return r;
   }
   current_.frame_index = frame_index;
@@ -274,6 +276,7 @@ const DeviceTrackResult& DeviceTracker::track(const cv::Mat& image, double times
   r.state = state_;
   r.track_ms = msSince(t1);
   r.total_ms = msSince(t0);
+  r.cpu_ms = threadCpuMs() - cpu0;
   return r;
 }
 

@@ -63,6 +63,7 @@ struct DeviceTrackResult {
   int inliers = 0;              ///< inliers of the final pose
   bool from_keyframe = false;   ///< predicted from the latest keyframe, not the motion model
   double orb_ms = 0.0, track_ms = 0.0, total_ms = 0.0;
+  double cpu_ms = 0.0;  ///< the calling thread's CPU time for the whole call (total_ms is wall)
   std::vector<cv::Point2f> tracked_pixels;  ///< inlier keypoints (distorted px), for drawing
   const char* message = "";                 ///< why tracking failed
 };

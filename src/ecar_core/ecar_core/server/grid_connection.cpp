@@ -133,6 +133,7 @@ VoOutcome GridConnection::apply(const VoRequest& r) {
 
 VisibleStructure GridConnection::visible(const TrackResult& frame, const std::string& device) {
   const auto start = std::chrono::steady_clock::now();
+  const double cpu_start = threadCpuMs();
   VisibleStructure out;
   out.objects_computed = config_.objects;
   if (frame.state != TrackingState::kOk) return out;
@@ -191,6 +192,7 @@ VisibleStructure GridConnection::visible(const TrackResult& frame, const std::st
     }
   }
   out.milliseconds = msSince(start);
+  out.cpu_ms = threadCpuMs() - cpu_start;
   return out;
 }
 

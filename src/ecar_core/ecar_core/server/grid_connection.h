@@ -61,6 +61,7 @@ struct VisibleStructure {
   bool objects_computed = false;       ///< false: objects are not looked for
   std::vector<CellKey> cells;          ///< cells hit by the sampled rays, sorted
   double milliseconds = 0.0;           ///< time of the whole computation
+  double cpu_ms = 0.0;                 ///< the calling thread's CPU time for it
   /// The frame was aligned in a map that was replaced since: nothing computed.
   bool stale = false;
 };

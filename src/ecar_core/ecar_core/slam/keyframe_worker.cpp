@@ -27,20 +27,21 @@ void KeyFrameWorker::processPending() {
   }
 }
 
-void KeyFrameWorker::run() {
+void KeyFrameWorker::run(const ThreadOptions& options) {
+  applyThreadOptions(options);
   for (KeyFrameId kf = next(true); kf.valid(); kf = next(true)) {
     handle_(kf);
     busy_ = false;
   }
 }
 
-void KeyFrameWorker::startThread() {
+void KeyFrameWorker::startThread(const ThreadOptions& options) {
   if (thread_.joinable()) return;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     stop_ = false;
   }
-  thread_ = std::thread([this] { run(); });
+  thread_ = std::thread([this, options] { run(options); });
 }
 
 void KeyFrameWorker::stopThread() {

@@ -10,6 +10,7 @@
 #include <mutex>
 #include <thread>
 
+#include "ecar_core/common/thread_priority.h"
 #include "ecar_core/common/types.h"
 
 namespace ecar {
@@ -26,7 +27,8 @@ class KeyFrameWorker {
   void push(KeyFrameId kf);
   /// Handles every queued keyframe on the calling thread.
   void processPending();
-  void startThread();
+  /// Starts the thread, named and niced as `options` say.
+  void startThread(const ThreadOptions& options = {});
   /// Handles the keyframes still queued, then stops the thread.
   void stopThread();
   bool threaded() const { return thread_.joinable(); }
@@ -38,7 +40,7 @@ class KeyFrameWorker {
  private:
   /// The next keyframe; invalid when the queue is empty (and, `wait`, stopping).
   KeyFrameId next(bool wait);
-  void run();
+  void run(const ThreadOptions& options);
 
   const std::function<void(KeyFrameId)> handle_;
   mutable std::mutex mutex_;

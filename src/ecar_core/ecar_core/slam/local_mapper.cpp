@@ -38,7 +38,7 @@ void LocalMapper::setCulledCallback(std::function<void(KeyFrameId, KeyFrameId)> 
 
 void LocalMapper::processPending() { worker_.processPending(); }
 
-void LocalMapper::startThread() { worker_.startThread(); }
+void LocalMapper::startThread() { worker_.startThread({"ecar_mapping", config_.background_nice}); }
 
 void LocalMapper::stopThread() { worker_.stopThread(); }
 
@@ -47,7 +47,7 @@ void LocalMapper::reset() {
   worker_.clear();
   worker_.stopThread();  // finishes the keyframe being mapped, if any
   recent_points_.clear();
-  if (threaded) worker_.startThread();
+  if (threaded) startThread();
 }
 
 void LocalMapper::process(KeyFrameId kf) {

@@ -49,7 +49,7 @@ void LoopCloser::insert(KeyFrameId kf) {
 
 void LoopCloser::processPending() { worker_.processPending(); }
 
-void LoopCloser::startThread() { worker_.startThread(); }
+void LoopCloser::startThread() { worker_.startThread({"ecar_loops", config_.background_nice}); }
 
 void LoopCloser::stopThread() { worker_.stopThread(); }
 

@@ -97,6 +97,10 @@ struct SlamConfig {
   /// Map each keyframe (and look for loops) inside track(); otherwise the
   /// mapper and the loop closer have their own threads.
   bool synchronous_mapping = true;
+  /// Niceness added to the local-mapping and loop-closing threads (0..19, Linux;
+  /// 0: the priority of the tracking threads). Tracking answers a device that
+  /// waits for its graph; mapping a keyframe can wait a few milliseconds.
+  int background_nice = 5;
   /// Epoch of the first map (Map::epoch); a server makes it differ between
   /// its starts so that devices notice a restarted server. >= 1.
   uint32_t first_epoch = 1;

@@ -161,7 +161,8 @@ class Device {
     ros::Time sent;
     cv::Mat gray;  ///< the device's own uncompressed image
     uint32_t bytes_up = 0;
-    float tracking_time = 0.f;  ///< s, the device's tracking of this frame
+    float tracking_time = 0.f;      ///< s, the device's tracking of this frame
+    float tracking_cpu_time = 0.f;  ///< s of the tracking thread's CPU for it
   };
 
   void onImage(const sensor_msgs::ImageConstPtr& msg);

@@ -67,6 +67,7 @@ struct ServerConfig {
   bool loop_closing = true;
   int loop_min_inliers = 40;   ///< similarity inliers a loop needs
   bool loop_global_ba = true;  ///< a global bundle adjustment after each loop
+  int background_nice = 5;     ///< niceness added to local mapping and loop closing (0..19)
   /// Atlas: several maps (a device that matches no map starts its own at
   /// once), merged when they overlap; false: every device joins the first map.
   bool several_maps = false;

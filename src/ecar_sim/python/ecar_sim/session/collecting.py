@@ -109,6 +109,8 @@ class Records:
             "send_ms": 1e3 * (m.server_time - m.receive_time - m.align_time),
             "download_ms": 1e3 * m.download_time,
             "device_tracking_ms": 1e3 * m.tracking_time_device,
+            "server_cpu_ms": 1e3 * m.server_cpu_time,
+            "device_tracking_cpu_ms": 1e3 * m.tracking_cpu_time_device,
         }
         with self.lock:
             self.metrics.append(row)

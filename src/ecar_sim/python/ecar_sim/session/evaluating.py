@@ -26,7 +26,8 @@ from ecar_sim.session.datasets import read_frame_times
 
 METRICS_FIELDS = ["device", "frame", "bytes_up", "bytes_down", "points", "positions",
                   "latency_ms", "upload_ms", "server_ms", "receive_ms", "align_ms",
-                  "send_ms", "download_ms", "device_tracking_ms"]
+                  "send_ms", "download_ms", "device_tracking_ms", "server_cpu_ms",
+                  "device_tracking_cpu_ms"]
 
 
 def percentile(values, q):
@@ -170,6 +171,15 @@ def overall_summary(devices, records, time_scale=1.0):
         "device_tracking_ms_median": rnd(percentile(
             [e.tracking_time * 1e3 for d in devices for e in records.device_frames[d].values()],
             50), 2),
+        # CPU times (each thread's own clock, so not inflated by the other processes on the
+        # cores): the server's threads per upload (decoding, ORB, tracking, grid, composing;
+        # not the background mapping), and the device's tracking of the uploaded frames.
+        "server_cpu_ms_median": rnd(percentile(
+            [r["server_cpu_ms"] for r in rows if "server_cpu_ms" in r], 50), 2),
+        "server_cpu_ms_p95": rnd(percentile(
+            [r["server_cpu_ms"] for r in rows if "server_cpu_ms" in r], 95), 2),
+        "device_tracking_cpu_ms_median": rnd(percentile(
+            [r["device_tracking_cpu_ms"] for r in rows if "device_tracking_cpu_ms" in r], 50), 2),
     }
     if time_scale != 1.0:
         s = time_scale

@@ -78,6 +78,12 @@ def print_summary(s, out):
                 fmt(o["upload_ms_median"]), fmt(o["server_ms_median"]),
                 fmt(o.get("receive_ms_median")), fmt(o["align_ms_median"]),
                 fmt(o.get("send_ms_median")), fmt(o["download_ms_median"])))
+    if o.get("server_cpu_ms_median") is not None:
+        log("CPU time (each thread's own clock), medians: server %s ms per upload (p95 %s: "
+            "decoding, ORB, tracking, grid, composing; background mapping not in it), device "
+            "tracking %s ms per uploaded frame" % (
+                fmt(o["server_cpu_ms_median"]), fmt(o.get("server_cpu_ms_p95")),
+                fmt(o.get("device_tracking_cpu_ms_median"))))
     pl = s.get("planes")
     if pl:
         off = pl.get("off_surface", [])
