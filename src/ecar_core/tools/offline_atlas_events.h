@@ -301,9 +301,10 @@ inline void reportAtlasEvents(const ecar::Atlas& atlas, const ecar::SlamSystem* 
     const size_t d = k < loop_found_by.size() ? loop_found_by[k].first : l.device.value - 1;
     const int upload = k < loop_found_by.size() ? loop_found_by[k].second : -1;
     std::printf(
-        "loop closed: %s upload %d (keyframe %u) with keyframe %u, %d inliers, similarity scale "
+        "loop closed%s: %s upload %d (keyframe %u) with keyframe %u, %d inliers, similarity scale "
         "%.4f, the keyframe moved %.3f m; detect %.1f ms, correct %.1f ms (%zu keyframes, %zu "
         "points moved, %zu fused), global BA %.1f ms\n",
+        l.by_odometry ? " (odometry across a tracking gap)" : "",
         d < runs.size() ? runs[d].name.c_str() : "?", upload, l.query.value, l.match.value,
         l.inliers, l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.keyframes_moved, l.points_moved,
         l.points_fused, l.global_ba_ms);
@@ -317,7 +318,8 @@ inline void reportAtlasEvents(const ecar::Atlas& atlas, const ecar::SlamSystem* 
                                            {"ms", l.detect_ms + l.correct_ms},
                                            {"detect_ms", l.detect_ms},
                                            {"correct_ms", l.correct_ms},
-                                           {"global_ba_ms", l.global_ba_ms}});
+                                           {"global_ba_ms", l.global_ba_ms},
+                                           {"by_odometry", l.by_odometry}});
     if (k < loop_steps.size()) {
       const CallTimes t = callTimesAfter(steps, loop_steps[k], 20);
       std::printf("  track() calls: the closing one %.1f ms; the next 20 median %.1f p95 %.1f ms\n",

@@ -66,6 +66,9 @@ void ServerConfig::validate() const {
   if (loop_min_inliers < 10 || loop_min_inliers > 10000) {
     fail("loop_min_inliers", "must be in [10, 10000]");
   }
+  if (!(loop_odometry_max_gap > 0.0 && loop_odometry_max_gap <= 60.0)) {
+    fail("loop_odometry_max_gap", "must be in (0, 60] s");
+  }
   if (!(camera_tolerance >= 0.0 && camera_tolerance < 1.0)) {
     fail("camera_tolerance", "must be in [0, 1)");
   }
@@ -133,6 +136,8 @@ ecar::SlamConfig ServerConfig::slamConfig() const {
   c.loops.enabled = loop_closing;
   c.loops.min_inliers = loop_min_inliers;
   c.loops.global_ba = loop_global_ba;
+  c.loops.by_odometry = loop_by_odometry;
+  c.loops.odometry_max_gap = loop_odometry_max_gap;
   c.background_nice = background_nice;
   c.synchronous_mapping = false;
   return c;

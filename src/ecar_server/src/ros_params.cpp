@@ -56,6 +56,8 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("loop_closing", &c.loop_closing);
   r.read("loop_min_inliers", &c.loop_min_inliers);
   r.read("loop_global_ba", &c.loop_global_ba);
+  r.read("loop_by_odometry", &c.loop_by_odometry);
+  r.read("loop_odometry_max_gap", &c.loop_odometry_max_gap);
   r.read("background_nice", &c.background_nice);
   r.read("camera_tolerance", &c.camera_tolerance);
   r.read("several_maps", &c.several_maps);

@@ -1,6 +1,7 @@
 // The server's parameters: config/server.yaml (every key known, and the
 // documented values are the defaults), wrong types and values naming the key,
 // unknown keys, the configs handed to the core, and the shared global graph.
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -33,6 +34,8 @@ TEST(ServerConfigTest, ShippedYamlHasOnlyKnownKeysWithTheDefaults) {
   EXPECT_EQ(c.vo_share, d.vo_share);
   EXPECT_EQ(c.vo.attach_mode, d.vo.attach_mode);
   EXPECT_EQ(c.background_nice, d.background_nice);
+  EXPECT_EQ(c.loop_by_odometry, d.loop_by_odometry);
+  EXPECT_DOUBLE_EQ(c.loop_odometry_max_gap, d.loop_odometry_max_gap);
 }
 
 TEST(ServerConfigTest, UnknownKeysAndWrongTypesAreNamed) {
@@ -99,6 +102,11 @@ TEST(ServerConfigTest, InvalidValuesNameTheirKey) {
   c.odometry_sigma_min = 0.0;
   expectKey(c, "odometry_sigma_min");
   c = ServerConfig();
+  c.loop_odometry_max_gap = 0.0;
+  expectKey(c, "loop_odometry_max_gap");
+  c.loop_odometry_max_gap = std::nan("");
+  expectKey(c, "loop_odometry_max_gap");
+  c = ServerConfig();
   c.background_nice = 20;
   expectKey(c, "background_nice");
   c.background_nice = 7;
@@ -144,11 +152,15 @@ TEST(ServerConfigTest, SlamKeysReachTheCore) {
   c.loop_closing = false;
   c.loop_min_inliers = 55;
   c.loop_global_ba = false;
+  c.loop_by_odometry = false;
+  c.loop_odometry_max_gap = 1.5;
   c.odometry_sigma_fraction = 0.05;
   const ecar::SlamConfig slam = c.slamConfig();
   EXPECT_FALSE(slam.loops.enabled);
   EXPECT_EQ(slam.loops.min_inliers, 55);
   EXPECT_FALSE(slam.loops.global_ba);
+  EXPECT_FALSE(slam.loops.by_odometry);
+  EXPECT_DOUBLE_EQ(slam.loops.odometry_max_gap, 1.5);
   EXPECT_DOUBLE_EQ(slam.odometry_sigma_fraction, 0.05);
 }
 

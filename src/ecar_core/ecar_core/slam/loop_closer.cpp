@@ -26,9 +26,51 @@ LoopCloser::LoopCloser(Map* map, PlaceIndex* index, const SlamConfig& config)
 LoopCloser::~LoopCloser() { stopThread(); }
 
 namespace {
-// Queued by requestBundleAdjustAll: no keyframe ever has this id.
+// Queued by requestBundleAdjustAll and closeByOdometry: no keyframe ever has
+// these ids.
 const KeyFrameId kBundleAdjustAll(std::numeric_limits<uint32_t>::max());
+const KeyFrameId kOdometryLoop(std::numeric_limits<uint32_t>::max() - 1);
 }  // namespace
+
+void LoopCloser::closeByOdometry(const OdometryLoop& loop) {
+  if (!config_.loops.enabled || !config_.loops.by_odometry) return;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    odometry_loops_.push_back(loop);
+  }
+  worker_.push(kOdometryLoop);
+  if (!worker_.threaded()) worker_.processPending();
+}
+
+void LoopCloser::processOdometryLoop() {
+  OdometryLoop loop;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (odometry_loops_.empty()) return;
+    loop = odometry_loops_.front();
+    odometry_loops_.pop_front();
+  }
+  {
+    auto lock = map_->readLock();
+    if (!map_->keyframe(loop.before) || !map_->keyframe(loop.after)) return;
+    // The two places already share points: the relocalisation is no loop.
+    for (const KeyFrameId n : map_->bestCovisible(loop.before, config_.loops.covisible_excluded)) {
+      if (n == loop.after) return;
+    }
+  }
+  Candidate candidate;
+  candidate.query = loop.before;
+  candidate.match = loop.after;
+  candidate.S.R = loop.G.linear();
+  candidate.S.t = loop.G.translation();
+  candidate.inliers = loop.inliers;
+  LoopClosure report;
+  report.query = loop.before;
+  report.match = loop.after;
+  report.inliers = loop.inliers;
+  report.by_odometry = true;
+  close(candidate, &report);
+}
 
 void LoopCloser::requestBundleAdjustAll() {
   worker_.push(kBundleAdjustAll);
@@ -59,6 +101,7 @@ void LoopCloser::reset() {
   // corrected callback may be waiting for the caller's own locks).
   worker_.clear();
   std::lock_guard<std::mutex> lock(mutex_);
+  odometry_loops_.clear();
   loop_edges_.clear();
   last_loop_keyframe_ = KeyFrameId();
 }
@@ -85,6 +128,10 @@ void LoopCloser::notify(const MapCorrection& correction) {
 }
 
 void LoopCloser::process(KeyFrameId kf) {
+  if (kf == kOdometryLoop) {
+    processOdometryLoop();
+    return;
+  }
   if (kf == kBundleAdjustAll) {
     const double ms = bundleAdjustAll();
     std::lock_guard<std::mutex> lock(mutex_);
@@ -105,20 +152,27 @@ void LoopCloser::process(KeyFrameId kf) {
   const bool found = detect(kf, &candidate, &report);
   report.detect_ms = msSince(t0);
   if (!found) return;
-  const MapCorrection correction = correct(candidate, &report);
-  if (correction.empty()) return;
+  close(candidate, &report);
+}
+
+bool LoopCloser::close(const Candidate& candidate, LoopClosure* report) {
+  const MapCorrection correction = correct(candidate, report);
+  if (correction.empty()) return false;
+  size_t index = 0;
   {
     // Recorded before the correction is announced (listeners may read it).
     std::lock_guard<std::mutex> lock(mutex_);
-    last_loop_keyframe_ = kf;
-    closures_.push_back(report);
+    if (!report->by_odometry) last_loop_keyframe_ = candidate.query;
+    index = closures_.size();
+    closures_.push_back(*report);
   }
   notify(correction);
   if (config_.loops.global_ba) {
-    globalBundleAdjustment(&report);
+    globalBundleAdjustment(report);
     std::lock_guard<std::mutex> lock(mutex_);
-    closures_.back().global_ba_ms = report.global_ba_ms;
+    if (index < closures_.size()) closures_[index].global_ba_ms = report->global_ba_ms;
   }
+  return true;
 }
 
 bool LoopCloser::detect(KeyFrameId kf, Candidate* out, LoopClosure* report) {

@@ -7,6 +7,10 @@
 // on the essential graph (spanning tree, strong covisibility, loop edges),
 // applied to keyframes and points (map_correction.h), duplicates on both
 // sides of the seam fused, and a global bundle adjustment refines it all.
+// Loops that place recognition cannot see (a corridor walked back facing the
+// other way: no view in common until the device turns round, is lost and
+// relocalises in the older part of the map) are closed the same way from the
+// device's odometry across the short tracking gap (closeByOdometry).
 //
 //   LoopCloser loops(&map, &place_index, config);
 //   loops.startThread();        // or processPending() after each keyframe
@@ -18,6 +22,7 @@
 // not written back).
 #pragma once
 
+#include <deque>
 #include <functional>
 #include <mutex>
 #include <vector>
@@ -32,6 +37,23 @@
 
 namespace ecar {
 
+/// A loop that a relocalisation found through the device's odometry
+/// (Tracker, LoopClosingConfig::by_odometry): the device was tracked near
+/// `before`, lost briefly, and relocalised near `after`, and its odometry
+/// across the gap disagrees with the relocalised pose by `drift_m`.
+struct OdometryLoop {
+  DeviceId device;
+  KeyFrameId before;  ///< the reference keyframe of the device's last tracked image
+  KeyFrameId after;   ///< its reference keyframe once relocalised
+  /// World to world: moves the map around `before` to agree with `after`
+  /// (X_after = G * X_before), from the last tracked pose, the odometry step
+  /// and the relocalised pose.
+  SE3 G = SE3::Identity();
+  double drift_m = 0.0;  ///< odometry-predicted to relocalised camera centre
+  double gap_s = 0.0;    ///< from the last tracked image to the relocalised one
+  int inliers = 0;       ///< points tracked in the relocalised image
+};
+
 /// One closed loop (or a global BA pass): what was found and what it cost.
 struct LoopClosure {
   KeyFrameId query;      ///< the new keyframe
@@ -42,6 +64,10 @@ struct LoopClosure {
   double drift_m = 0.0;  ///< how far the new keyframe's camera moved
   double detect_ms = 0.0, correct_ms = 0.0, global_ba_ms = 0.0;
   size_t keyframes_moved = 0, points_moved = 0, points_fused = 0;
+  /// Closed through the device's odometry across a tracking gap
+  /// (closeByOdometry), not by place recognition; `inliers` are then the
+  /// relocalised image's tracked points.
+  bool by_odometry = false;
 };
 
 class LoopCloser {
@@ -52,6 +78,11 @@ class LoopCloser {
   LoopCloser& operator=(const LoopCloser&) = delete;
 
   void insert(KeyFrameId kf);
+  /// Closes a loop that a relocalisation found through the device's odometry:
+  /// queued like a keyframe (on the closer's thread; at once, on the caller's,
+  /// without one). Dropped when `after` is in `before`'s covisible
+  /// neighbourhood (then it is no loop) or the keyframes are gone.
+  void closeByOdometry(const OdometryLoop& loop);
   /// Handles every queued keyframe now (synchronous mode).
   void processPending();
   void startThread();
@@ -80,6 +111,10 @@ class LoopCloser {
  private:
   struct Candidate;
   void process(KeyFrameId kf);
+  void processOdometryLoop();
+  /// Corrects the map with a verified loop, records it, announces the
+  /// correction and runs the global BA; false when nothing was applied.
+  bool close(const Candidate& candidate, LoopClosure* report);
   bool detect(KeyFrameId kf, Candidate* out, LoopClosure* report);
   /// Empty when nothing was applied (the map changed meanwhile).
   MapCorrection correct(const Candidate& c, LoopClosure* report);
@@ -89,9 +124,11 @@ class LoopCloser {
   Map* map_;
   PlaceIndex* index_;
   SlamConfig config_;
-  mutable std::mutex mutex_;  // guards closures_, loop_edges_, callback_, last_loop_keyframe_
+  mutable std::mutex
+      mutex_;  // guards closures_, loop_edges_, callback_, last_loop_keyframe_, odometry_loops_
   std::vector<LoopClosure> closures_;
   std::vector<double> requested_ba_ms_;
+  std::deque<OdometryLoop> odometry_loops_;  ///< queued by closeByOdometry
   /// Loop edges kept for later pose graphs: (a, b, S_a_w S_b_w^-1 when closed).
   struct LoopEdge {
     KeyFrameId a, b;

@@ -36,6 +36,19 @@ struct LoopClosingConfig {
   int global_ba_iterations = 10;
   /// After a loop, the next one is looked for this many keyframes later.
   int keyframes_between_loops = 5;
+  /// Loops closed through a device's odometry (LoopCloser::closeByOdometry):
+  /// a device lost for at most `odometry_max_gap` s relocalises elsewhere in a
+  /// metric map, and its odometry across the gap puts it more than
+  /// `odometry_min_drift` (m, and 3 odometry sigmas) and at most
+  /// `odometry_max_drift` from where it relocalised: the map between the two
+  /// places drifted (e.g. a corridor walked back in the other direction, which
+  /// place recognition cannot match), and the odometry's short step is the loop
+  /// edge. The relocalised pose needs `odometry_min_inliers` tracked points.
+  bool by_odometry = true;
+  double odometry_max_gap = 3.0;
+  double odometry_min_drift = 0.03;
+  double odometry_max_drift = 1.0;
+  int odometry_min_inliers = 50;
 };
 
 struct SlamConfig {

@@ -92,6 +92,7 @@ TrackResult SlamSystem::track(DeviceId device, const cv::Mat& image, double time
   // A shared reference: setCamera() may replace the device's tracker meanwhile.
   const std::shared_ptr<Tracker> tracker = sharedTracker(device);
   TrackResult result = tracker->track(image, timestamp, frame_index, gravity_c, T_o_c);
+  if (result.odometry_loop) loops_.closeByOdometry(*result.odometry_loop);
   auto lock = map_.readLock();
   result.map_epoch = map_.epoch();  // installMap() cannot run while `session` is held
   return result;

@@ -52,7 +52,7 @@ void Tracker::reset() {
   last_inliers_ = 0;
   inliers_.clear();
   velocity_.reset();
-  reference_kf_ = KeyFrameId();
+  reference_kf_ = last_reference_kf_ = KeyFrameId();
   local_keyframes_.clear();
   frames_since_keyframe_ = 0;
   init_candidates_.clear();
@@ -113,11 +113,17 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
     }
   } else if (map_ready) {
     // Lost, or a new device in an existing map: relocalise (join).
-    if (relocalise() && trackLocalMap() >= config_.min_inliers) {
+    const bool was_lost = state_ == TrackingState::kLost;
+    const int inliers = relocalise() ? trackLocalMap() : 0;
+    if (inliers >= config_.min_inliers) {
       state_ = TrackingState::kOk;
       result.relocalised = true;
       ++relocalisations_;
       velocity_.reset();
+      if (was_lost && inliers >= config_.loops.odometry_min_inliers) {
+        result.odometry_loop = odometryLoop();
+        if (result.odometry_loop) result.odometry_loop->inliers = inliers;
+      }
     } else {
       result.message = "relocalisation failed";
       if (state_ == TrackingState::kOk) state_ = TrackingState::kLost;
@@ -142,6 +148,7 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
       const KeyFrame* ref = map_->keyframe(reference_kf_);
       reference_pose_ = ref ? ref->T_c_w : SE3::Identity();
     }
+    last_reference_kf_ = reference_kf_;
     last_inliers_ = static_cast<int>(std::count(inliers_.begin(), inliers_.end(), true));
     last_matches_ = matches_;
     for (size_t i = 0; i < last_matches_.size(); ++i) {
@@ -158,6 +165,43 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
   result.track_ms = msSince(t1);
   if (result.new_keyframe && config_.synchronous_mapping) mapper_->processPending();
   return result;
+}
+
+std::optional<OdometryLoop> Tracker::odometryLoop() const {
+  // last_ and last_T_c_w_ are still the last image tracked (current_ is the
+  // relocalised one).
+  const LoopClosingConfig& c = config_.loops;
+  if (!c.enabled || !c.by_odometry || !last_.T_o_c || !current_.T_o_c) return std::nullopt;
+  const double gap = current_.timestamp - last_.timestamp;
+  if (!(gap > 0.0) || gap > c.odometry_max_gap) return std::nullopt;
+  {
+    auto lock = map_->readLock();
+    if (!map_->metric() || !map_->keyframe(last_reference_kf_) || !map_->keyframe(reference_kf_) ||
+        last_reference_kf_ == reference_kf_) {
+      return std::nullopt;
+    }
+  }
+  // The odometry's step from the last image to this one (camera_last <- camera_now),
+  // in metres: a metric map's units.
+  const SE3 T_last_now = last_.T_o_c->inverse() * *current_.T_o_c;
+  const SE3 T_c_w_predicted = T_last_now.inverse() * last_T_c_w_;
+  const double drift =
+      (T_c_w_predicted.inverse().translation() - T_c_w_.inverse().translation()).norm();
+  const double sigma = config_.odometry_sigma_min +
+                       config_.odometry_sigma_fraction * T_last_now.translation().norm();
+  if (!(drift >= std::max(c.odometry_min_drift, 3.0 * sigma)) || drift > c.odometry_max_drift) {
+    return std::nullopt;
+  }
+  OdometryLoop loop;
+  loop.device = device_;
+  loop.before = last_reference_kf_;
+  loop.after = reference_kf_;
+  // The last image's pose in the relocalised part of the map is T_last_now *
+  // T_c_w_; the old part moves with it.
+  loop.G = T_c_w_.inverse() * T_last_now.inverse() * last_T_c_w_;
+  loop.drift_m = drift;
+  loop.gap_s = gap;
+  return loop;
 }
 
 std::vector<PointSample> Tracker::samplesOf(const std::vector<MapPointId>& ids) const {

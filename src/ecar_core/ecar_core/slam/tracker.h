@@ -24,6 +24,7 @@
 #include "ecar_core/common/types.h"
 #include "ecar_core/slam/features.h"
 #include "ecar_core/slam/frame.h"
+#include "ecar_core/slam/loop_closer.h"
 #include "ecar_core/slam/map.h"
 #include "ecar_core/slam/matcher.h"
 #include "ecar_core/slam/optimizer.h"
@@ -57,6 +58,10 @@ struct TrackResult {
   /// The atlas map the image was aligned in (set by Atlas::track; invalid for
   /// a lone SlamSystem and when nothing was tracked).
   MapId map;
+  /// This image relocalised the device shortly after it was lost, and its
+  /// odometry across the gap disagrees with the relocalised pose: the loop it
+  /// closes (SlamSystem::track hands it to the LoopCloser).
+  std::optional<OdometryLoop> odometry_loop;
 };
 
 class LocalMapper;
@@ -99,6 +104,9 @@ class Tracker {
   /// of a relocalised pose.
   bool verifyRelocalisation(std::vector<PointSample> samples);
   bool gravityConsistent() const;
+  /// After a relocalisation of a lost device: the loop its odometry closes
+  /// from the last tracked image (LoopClosingConfig::by_odometry), if any.
+  std::optional<OdometryLoop> odometryLoop() const;
   int trackLocalMap();
   bool needKeyFrame() const;
   KeyFrameId createKeyFrame();
@@ -124,6 +132,9 @@ class Tracker {
   std::vector<bool> inliers_;
   std::optional<SE3> velocity_;  ///< T_c_last: motion from the last frame to the current
   KeyFrameId reference_kf_;
+  /// The reference keyframe at the last image tracked (`last_`, last_T_c_w_):
+  /// kept while lost, as relocalisation attempts change reference_kf_.
+  KeyFrameId last_reference_kf_;
   /// The map revision and the reference keyframe's pose at the last image
   /// tracked (a loop correction in between moves the last pose with it).
   uint64_t seen_revision_ = 0;

@@ -67,7 +67,11 @@ struct ServerConfig {
   bool loop_closing = true;
   int loop_min_inliers = 40;   ///< similarity inliers a loop needs
   bool loop_global_ba = true;  ///< a global bundle adjustment after each loop
-  int background_nice = 5;     ///< niceness added to local mapping and loop closing (0..19)
+  /// Loops closed through a device's odometry when it relocalises elsewhere
+  /// at most loop_odometry_max_gap s after it was lost (LoopClosingConfig).
+  bool loop_by_odometry = true;
+  double loop_odometry_max_gap = 3.0;  ///< s, in (0, 60]
+  int background_nice = 5;             ///< niceness added to local mapping and loop closing (0..19)
   /// Atlas: several maps (a device that matches no map starts its own at
   /// once), merged when they overlap; false: every device joins the first map.
   bool several_maps = false;
