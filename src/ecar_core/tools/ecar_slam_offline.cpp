@@ -3,7 +3,8 @@
 //   ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]
 //                     [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]
 //                     [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]
-//                     [--gravity-sigma DEG] [--odometry-sigma F] [--no-loops] [--atlas]
+//                     [--gravity-sigma DEG] [--odometry-sigma F] [--odometry-walk W]
+//                     [--ba-whole-map N] [--no-loops] [--atlas]
 //
 // Every Nth frame of each dataset is (optionally) JPEG-compressed at quality Q,
 // decoded, and tracked; several datasets run interleaved by time into one map,
@@ -88,13 +89,16 @@ struct Args {
   int orb_features = 0;             // 0: the library default
   double gravity_sigma_deg = -1.0;  // < 0: the library default
   double odometry_sigma = -1.0;     // < 0: the library default
+  double odometry_walk = -1.0;      // < 0: the library default
+  int ba_whole_map = -1;            // < 0: the library default
 };
 
 void usage(std::ostream& os) {
   os << "usage: ecar_slam_offline --dataset DIR [--format auto|sim|tum|kitti|euroc] [--every N]\n"
         "         [--jpeg-quality Q] [--frames N] [--out TRAJ.txt] [--summary FILE.json]\n"
         "         [--devices DIR2 ...] [--no-odometry] [--threads] [--orb-features N]\n"
-        "         [--gravity-sigma DEG] [--odometry-sigma F] [--no-loops] [--atlas]\n"
+        "         [--gravity-sigma DEG] [--odometry-sigma F] [--odometry-walk W]\n"
+        "         [--ba-whole-map N] [--no-loops] [--atlas]\n"
         "  --every N         track every Nth frame (the server sees every 4th)\n"
         "  --jpeg-quality Q  JPEG-compress each image at quality Q (1-100) first\n"
         "  --frames N        only the first N frames of each dataset\n"
@@ -110,8 +114,12 @@ void usage(std::ostream& os) {
         "  --atlas           several maps: a device that matches no map starts its own at once\n"
         "                    (and after being lost for 8 uploads); maps merge when they overlap\n"
         "                    (default: one map, later devices join it)\n"
-        "  --odometry-sigma F odometry edges of local BA in metric maps, sigma as a fraction\n"
-        "                    of the distance (0: off; default 0.02)\n";
+        "  --odometry-sigma F odometry edges of local BA in metric maps: the scale-error part\n"
+        "                    of their sigma, a fraction of the distance (default 0.02)\n"
+        "  --odometry-walk W  their random-walk part, m per sqrt(m) (default 0; both 0:\n"
+        "                    no odometry edges)\n"
+        "  --ba-whole-map N  bundle-adjust a metric map whole while it has at most N keyframes\n"
+        "                    (default 30; 0: windows only)\n";
 }
 
 Args parse(int argc, char** argv) {
@@ -182,6 +190,23 @@ Args parse(int argc, char** argv) {
           !(a.odometry_sigma >= 0.0 && a.odometry_sigma <= 1.0)) {
         throw ecar::Error("option --odometry-sigma needs a fraction in [0, 1] (got '" + v + "')");
       }
+    } else if (k == "--odometry-walk") {
+      const std::string v = value();
+      char* end = nullptr;
+      a.odometry_walk = std::strtod(v.c_str(), &end);
+      if (end == v.c_str() || *end != '\0' || !(a.odometry_walk >= 0.0 && a.odometry_walk <= 1.0)) {
+        throw ecar::Error("option --odometry-walk needs metres per sqrt(m) in [0, 1] (got '" + v +
+                          "')");
+      }
+    } else if (k == "--ba-whole-map") {
+      const std::string v = value();
+      char* end = nullptr;
+      const long n = std::strtol(v.c_str(), &end, 10);
+      if (end == v.c_str() || *end != '\0' || n < 0 || n > 500) {
+        throw ecar::Error("option --ba-whole-map needs a keyframe count in [0, 500] (got '" + v +
+                          "')");
+      }
+      a.ba_whole_map = static_cast<int>(n);
     } else if (k == "--help" || k == "-h") {
       usage(std::cout);
       std::exit(0);
@@ -208,6 +233,8 @@ int run(const Args& args) {
   if (args.orb_features > 0) config.orb.num_features = args.orb_features;
   if (args.gravity_sigma_deg >= 0.0) config.ba.gravity_sigma_deg = args.gravity_sigma_deg;
   if (args.odometry_sigma >= 0.0) config.odometry_sigma_fraction = args.odometry_sigma;
+  if (args.odometry_walk >= 0.0) config.odometry_sigma_walk = args.odometry_walk;
+  if (args.ba_whole_map >= 0) config.ba_whole_map_keyframes = args.ba_whole_map;
   config.loops.enabled = args.loops;
   // An atlas of maps; each device with its own camera (its dataset's camera.yaml).
   ecar::AtlasConfig atlas_config;
@@ -529,6 +556,8 @@ int run(const Args& args) {
   }
   summary["scale_sim3"] = S_sim3.scale;
   summary["odometry_sigma_fraction"] = config.odometry_sigma_fraction;
+  summary["odometry_sigma_walk"] = config.odometry_sigma_walk;
+  summary["ba_whole_map_keyframes"] = config.ba_whole_map_keyframes;
   const ecar::ErrorStats rotation = ecar::computeStats(ecar::rotationSpreadDeg(map_to_world));
   const ecar::ErrorStats tilt = ecar::computeStats(all_tilt);
   std::printf(

@@ -44,11 +44,17 @@ void ServerConfig::validate() const {
   if (edgeslam_keyframes < 0) fail("edgeslam_keyframes", "must be >= 0");
   if (orb_features < 100 || orb_features > 100000) fail("orb_features", "must be in [100, 100000]");
   if (local_keyframes < 2) fail("local_keyframes", "must be >= 2");
+  if (ba_whole_map_keyframes < 0 || ba_whole_map_keyframes > 500) {
+    fail("ba_whole_map_keyframes", "must be in [0, 500]");
+  }
   if (!(gravity_sigma_deg >= 0.0) || gravity_sigma_deg > 90.0) {
     fail("gravity_sigma_deg", "must be in [0, 90] degrees");
   }
   if (!(odometry_sigma_fraction >= 0.0 && odometry_sigma_fraction <= 1.0)) {
     fail("odometry_sigma_fraction", "must be in [0, 1]");
+  }
+  if (!(odometry_sigma_walk >= 0.0 && odometry_sigma_walk <= 1.0)) {
+    fail("odometry_sigma_walk", "must be in [0, 1] m per sqrt(m)");
   }
   if (!(odometry_sigma_min > 0.0 && odometry_sigma_min <= 1.0)) {
     fail("odometry_sigma_min", "must be in (0, 1] m");
@@ -130,8 +136,10 @@ ecar::SlamConfig ServerConfig::slamConfig() const {
   ecar::SlamConfig c;
   c.orb.num_features = orb_features;
   c.local_keyframes = local_keyframes;
+  c.ba_whole_map_keyframes = ba_whole_map_keyframes;
   c.ba.gravity_sigma_deg = gravity_sigma_deg;
   c.odometry_sigma_fraction = odometry_sigma_fraction;
+  c.odometry_sigma_walk = odometry_sigma_walk;
   c.odometry_sigma_min = odometry_sigma_min;
   c.loops.enabled = loop_closing;
   c.loops.min_inliers = loop_min_inliers;

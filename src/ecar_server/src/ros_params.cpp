@@ -50,8 +50,10 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("edgeslam_keyframes", &c.edgeslam_keyframes);
   r.read("orb_features", &c.orb_features);
   r.read("local_keyframes", &c.local_keyframes);
+  r.read("ba_whole_map_keyframes", &c.ba_whole_map_keyframes);
   r.read("gravity_sigma_deg", &c.gravity_sigma_deg);
   r.read("odometry_sigma_fraction", &c.odometry_sigma_fraction);
+  r.read("odometry_sigma_walk", &c.odometry_sigma_walk);
   r.read("odometry_sigma_min", &c.odometry_sigma_min);
   r.read("loop_closing", &c.loop_closing);
   r.read("loop_min_inliers", &c.loop_min_inliers);

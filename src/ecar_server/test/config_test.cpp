@@ -102,6 +102,12 @@ TEST(ServerConfigTest, InvalidValuesNameTheirKey) {
   c.odometry_sigma_min = 0.0;
   expectKey(c, "odometry_sigma_min");
   c = ServerConfig();
+  c.odometry_sigma_walk = -0.01;
+  expectKey(c, "odometry_sigma_walk");
+  c = ServerConfig();
+  c.ba_whole_map_keyframes = -1;
+  expectKey(c, "ba_whole_map_keyframes");
+  c = ServerConfig();
   c.loop_odometry_max_gap = 0.0;
   expectKey(c, "loop_odometry_max_gap");
   c.loop_odometry_max_gap = std::nan("");
@@ -155,6 +161,9 @@ TEST(ServerConfigTest, SlamKeysReachTheCore) {
   c.loop_by_odometry = false;
   c.loop_odometry_max_gap = 1.5;
   c.odometry_sigma_fraction = 0.05;
+  c.odometry_sigma_walk = 0.02;
+  c.odometry_sigma_min = 0.003;
+  c.ba_whole_map_keyframes = 12;
   const ecar::SlamConfig slam = c.slamConfig();
   EXPECT_FALSE(slam.loops.enabled);
   EXPECT_EQ(slam.loops.min_inliers, 55);
@@ -162,6 +171,10 @@ TEST(ServerConfigTest, SlamKeysReachTheCore) {
   EXPECT_FALSE(slam.loops.by_odometry);
   EXPECT_DOUBLE_EQ(slam.loops.odometry_max_gap, 1.5);
   EXPECT_DOUBLE_EQ(slam.odometry_sigma_fraction, 0.05);
+  EXPECT_DOUBLE_EQ(slam.odometry_sigma_walk, 0.02);
+  EXPECT_DOUBLE_EQ(slam.odometry_sigma_min, 0.003);
+  EXPECT_EQ(slam.ba_whole_map_keyframes, 12);
+  EXPECT_NEAR(slam.odometrySigma(0.04), 0.003 + 0.02 * 0.2 + 0.05 * 0.04, 1e-12);
 }
 
 TEST(ServerConfigTest, CoreConfigsCarryTheKeys) {

@@ -324,7 +324,7 @@ int LocalMapper::fuseInto(KeyFrameId target, const std::vector<MapPointId>& poin
 
 void addOdometryEdges(const Map& map, const SlamConfig& config, const std::vector<KeyFrameId>& ids,
                       BaProblem* problem) {
-  if (!(config.odometry_sigma_fraction > 0.0)) return;
+  if (!config.odometryEdges()) return;
   // Each device's keyframes in the window with odometry, in time order; an
   // edge between consecutive ones.
   struct Stamped {
@@ -352,8 +352,7 @@ void addOdometryEdges(const Map& map, const SlamConfig& config, const std::vecto
       edge.from = a.index;
       edge.to = b.index;
       edge.t_from_to = T_o_a.linear().transpose() * (T_o_b.translation() - T_o_a.translation());
-      edge.sigma =
-          config.odometry_sigma_min + config.odometry_sigma_fraction * edge.t_from_to.norm();
+      edge.sigma = config.odometrySigma(edge.t_from_to.norm());
       problem->odometry.push_back(edge);
     }
   }
@@ -372,7 +371,16 @@ void LocalMapper::localBundleAdjustment(KeyFrameId kf) {
     revision = map_->revision();
     if (!map_->keyframe(kf)) return;
     std::vector<KeyFrameId> local = {kf};
-    for (const auto& n : map_->bestCovisible(kf, config_.ba_keyframes)) local.push_back(n);
+    if (map_->metric() && config_.odometryEdges() &&
+        map_->numKeyFrames() <= static_cast<size_t>(config_.ba_whole_map_keyframes)) {
+      // A young metric map: all of it, so that every device's odometry sets
+      // its scale at once (see SlamConfig::ba_whole_map_keyframes).
+      for (const auto& id : map_->keyframeIds()) {
+        if (id != kf) local.push_back(id);
+      }
+    } else {
+      for (const auto& n : map_->bestCovisible(kf, config_.ba_keyframes)) local.push_back(n);
+    }
     std::unordered_map<KeyFrameId, int> kf_index;
     for (const auto& id : local) {
       kf_index[id] = static_cast<int>(problem.keyframes.size());

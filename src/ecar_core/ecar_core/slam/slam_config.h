@@ -2,6 +2,9 @@
 // one struct with in-class defaults; ecar_server fills it from rosparam.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
+
 #include "ecar_core/slam/features.h"
 #include "ecar_core/slam/optimizer.h"
 #include "ecar_core/slam/place_recognition.h"
@@ -73,10 +76,18 @@ struct SlamConfig {
   /// Below this fraction of the last image's inliers, the motion-model result
   /// is checked against tracking from the reference keyframe.
   double weak_tracking_ratio = 0.5;
-  double projection_radius = 15.0;   ///< px (x pyramid scale) for motion-model search
-  double local_map_radius = 4.0;     ///< px (x scale) for the local-map search
-  int local_keyframes = 25;          ///< keyframes in the tracking local map
-  int ba_keyframes = 10;             ///< free keyframes in local BA
+  double projection_radius = 15.0;  ///< px (x pyramid scale) for motion-model search
+  double local_map_radius = 4.0;    ///< px (x scale) for the local-map search
+  int local_keyframes = 25;         ///< keyframes in the tracking local map
+  int ba_keyframes = 10;            ///< free keyframes in local BA
+  /// A metric map of at most this many keyframes is bundle-adjusted whole
+  /// (only its first keyframe fixed), so that all devices' odometry sets its
+  /// scale together. A young map's windows of ba_keyframes otherwise take
+  /// their scale from the few keyframes fixed around them, whose poses the
+  /// first short baselines set: E8's windows jumped 8% between anchors, and
+  /// its devices' poses by up to 27 cm (the map 11-25% too large) in 1 run
+  /// of 6. 0: always windows.
+  int ba_whole_map_keyframes = 30;
   double keyframe_ratio = 0.75;      ///< new keyframe when tracked < ratio x reference's
   int keyframe_max_gap = 4;          ///< frames (uploads) after which a keyframe is due
   int covisible_triangulation = 10;  ///< neighbours searched for new points
@@ -99,13 +110,26 @@ struct SlamConfig {
   /// Odometry in local bundle adjustment (metric maps only): consecutive
   /// keyframes of one device with odometry at most `odometry_max_gap` s
   /// apart are tied by the odometry's relative translation, with standard
-  /// deviation odometry_sigma_min + odometry_sigma_fraction * distance. This
-  /// keeps the map's scale to all devices' odometry over time (monocular
-  /// scale drifts; the first baseline alone sets it to about 1%).
-  /// odometry_sigma_fraction 0 disables it.
+  /// deviation odometrySigma(distance). This keeps the map's scale to all
+  /// devices' odometry over time (monocular scale drifts; the first baseline
+  /// alone sets it to about 1%). The model: a floor, a random walk
+  /// (odometry_sigma_walk m per sqrt(m) travelled, off by default) and a
+  /// fraction of the distance. A VIO's error is partly a scale bias that does
+  /// not average out over edges: sigmas near the simulated odometry's own
+  /// (min 0.001, walk 0.01, fraction 0.01) made the corridor's map follow its
+  /// +1% bias (scale error -0.72% instead of -0.29%). odometry_sigma_walk and
+  /// odometry_sigma_fraction both 0 disable it.
   double odometry_sigma_fraction = 0.02;
+  double odometry_sigma_walk = 0.0;  ///< m per sqrt(m)
   double odometry_sigma_min = 0.01;  ///< m
   double odometry_max_gap = 10.0;    ///< s
+  /// Standard deviation (m) of a device's odometry over `distance` m.
+  double odometrySigma(double distance) const {
+    return odometry_sigma_min + odometry_sigma_walk * std::sqrt(std::max(0.0, distance)) +
+           odometry_sigma_fraction * distance;
+  }
+  /// Odometry ties keyframes in bundle adjustment.
+  bool odometryEdges() const { return odometry_sigma_fraction > 0.0 || odometry_sigma_walk > 0.0; }
   LoopClosingConfig loops;
   /// Map each keyframe (and look for loops) inside track(); otherwise the
   /// mapper and the loop closer have their own threads.

@@ -187,8 +187,7 @@ std::optional<OdometryLoop> Tracker::odometryLoop() const {
   const SE3 T_c_w_predicted = T_last_now.inverse() * last_T_c_w_;
   const double drift =
       (T_c_w_predicted.inverse().translation() - T_c_w_.inverse().translation()).norm();
-  const double sigma = config_.odometry_sigma_min +
-                       config_.odometry_sigma_fraction * T_last_now.translation().norm();
+  const double sigma = config_.odometrySigma(T_last_now.translation().norm());
   if (!(drift >= std::max(c.odometry_min_drift, 3.0 * sigma)) || drift > c.odometry_max_drift) {
     return std::nullopt;
   }

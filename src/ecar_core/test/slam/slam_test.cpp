@@ -2,9 +2,12 @@
 // mapping, several devices in one map, and bad images; and on a real one.
 #include "ecar_core/slam/slam_system.h"
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstdio>
 #include <filesystem>
+#include <map>
 #include <optional>
 #include <thread>
 
@@ -440,6 +443,75 @@ TEST(SlamTest, BadImagesAreReportedAndSkipped) {
   const auto r1 = slam.track(DeviceId(1), uploads.back().image, 100.0, 1000);
   const auto r2 = slam.track(DeviceId(1), uploads.back().image, 100.1, 1001);
   EXPECT_EQ(r2.state, r1.state);
+}
+
+// Map distance over odometry distance between a device's consecutive
+// keyframes, summed over the map.
+double mapOverOdometry(const Map& map) {
+  std::vector<const KeyFrame*> kfs;
+  for (const KeyFrameId& id : map.keyframeIds()) {
+    const KeyFrame* k = map.keyframe(id);
+    if (k && k->features.T_o_c) kfs.push_back(k);
+  }
+  std::sort(kfs.begin(), kfs.end(),
+            [](const KeyFrame* a, const KeyFrame* b) { return a->timestamp < b->timestamp; });
+  double in_map = 0.0, by_odometry = 0.0;
+  for (size_t i = 1; i < kfs.size(); ++i) {
+    in_map += (kfs[i]->center() - kfs[i - 1]->center()).norm();
+    by_odometry +=
+        (kfs[i]->features.T_o_c->translation() - kfs[i - 1]->features.T_o_c->translation()).norm();
+  }
+  return in_map / by_odometry;
+}
+
+// A young metric map is bundle-adjusted whole, so its scale is every
+// keyframe's odometry. The map is scaled by 10% about its first keyframe
+// (which no image can tell): whole, one adjustment brings it back to metres;
+// in windows of ba_keyframes the keyframes fixed around the window keep the
+// old scale and hold the window to it (how E8's young map slid by 11-25%).
+TEST(SlamTest, AYoungMetricMapTakesItsScaleFromAllItsOdometry) {
+  const Scene scene = loadScene(kScenes + "/corridor.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "device_0", 4, 32);
+  std::map<int, double> before, after;
+  for (const int whole : {30, 0}) {
+    SlamConfig config;
+    config.ba_whole_map_keyframes = whole;
+    SlamSystem slam(renderer.camera(), config);
+    KeyFrameId last;
+    for (const auto& u : uploads) {
+      const auto r = slam.track(DeviceId(1), u.image, u.motion.timestamp, u.frame,
+                                u.motion.gravity_c, u.motion.T_o_c);
+      if (r.new_keyframe) last = *r.new_keyframe;
+    }
+    ASSERT_TRUE(last.valid());
+    {
+      auto lock = slam.map().writeLock();
+      Map& map = slam.map();
+      ASSERT_TRUE(map.metric());
+      ASSERT_GT(map.numKeyFrames(), static_cast<size_t>(config.ba_keyframes) + 4);
+      ASSERT_LE(map.numKeyFrames(), 30u);
+      const Eigen::Vector3d c0 = map.keyframe(map.keyframeIds().front())->center();
+      for (const KeyFrameId& id : map.keyframeIds()) {
+        KeyFrame* k = map.mutableKeyFrame(id);
+        const Eigen::Vector3d c = c0 + 1.1 * (k->center() - c0);
+        k->T_c_w.translation() = -(k->T_c_w.linear() * c);
+      }
+      for (const MapPointId& id : map.pointIds()) {
+        MapPoint* p = map.mutablePoint(id);
+        p->p_w = c0 + 1.1 * (p->p_w - c0);
+      }
+      before[whole] = mapOverOdometry(map);
+    }
+    slam.mapper().adjustNow(last);
+    auto lock = slam.map().readLock();
+    after[whole] = mapOverOdometry(slam.map());
+  }
+  std::printf("map/odometry scaled %.4f; adjusted whole %.4f, in windows %.4f\n", before[30],
+              after[30], after[0]);
+  EXPECT_NEAR(before[30], 1.1, 0.03);
+  EXPECT_NEAR(after[30], 1.0, 0.02) << "the whole map follows its odometry";
+  EXPECT_GT(after[0], 1.06) << "windows keep the scale of the keyframes fixed around them";
 }
 
 }  // namespace

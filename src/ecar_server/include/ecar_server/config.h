@@ -56,11 +56,17 @@ struct ServerConfig {
   int orb_features = 1000;
   /// Keyframes in the tracker's local map.
   int local_keyframes = 25;
+  /// SLAM: a metric map of at most this many keyframes is bundle-adjusted
+  /// whole, so all devices' odometry sets its scale together (0: windows only;
+  /// SlamConfig::ba_whole_map_keyframes).
+  int ba_whole_map_keyframes = 30;
   /// SLAM: gravity prior of local bundle adjustment, degrees (0: off).
   double gravity_sigma_deg = 0.3;
-  /// SLAM: odometry edges of local BA in metric maps, sigma = min + fraction *
-  /// distance between consecutive keyframes of a device (fraction 0: off).
+  /// SLAM: odometry edges of local BA in metric maps between consecutive
+  /// keyframes of a device d m apart, sigma = min + walk * sqrt(d) + fraction * d
+  /// (SlamConfig::odometrySigma; walk and fraction both 0: off).
   double odometry_sigma_fraction = 0.02;
+  double odometry_sigma_walk = 0.0;  ///< m per sqrt(m)
   double odometry_sigma_min = 0.01;  ///< m
   /// SLAM: loop closing (place recognition outside the covisible
   /// neighbourhood, similarity verification, pose graph, global BA).
