@@ -142,6 +142,18 @@ Args parse(int argc, char** argv) {
                           std::to_string(hi) + "] (got '" + v + "')");
       }
     };
+    // A number in [lo, hi]; `what` names its unit in the error.
+    auto real = [&](double lo, double hi, const char* what) {
+      const std::string v = value();
+      char* end = nullptr;
+      const double x = std::strtod(v.c_str(), &end);
+      if (end == v.c_str() || *end != '\0' || !(x >= lo && x <= hi)) {
+        char range[64];
+        std::snprintf(range, sizeof(range), "[%g, %g]", lo, hi);
+        throw ecar::Error("option " + k + " needs " + what + " in " + range + " (got '" + v + "')");
+      }
+      return x;
+    };
     if (k == "--dataset") {
       a.datasets.insert(a.datasets.begin(), value());
     } else if (k == "--devices") {
@@ -175,38 +187,13 @@ Args parse(int argc, char** argv) {
     } else if (k == "--orb-features") {
       a.orb_features = integer(100, 100000);
     } else if (k == "--gravity-sigma") {
-      const std::string v = value();
-      char* end = nullptr;
-      a.gravity_sigma_deg = std::strtod(v.c_str(), &end);
-      if (end == v.c_str() || *end != '\0' || !(a.gravity_sigma_deg >= 0.0) ||
-          a.gravity_sigma_deg > 90.0) {
-        throw ecar::Error("option --gravity-sigma needs degrees in [0, 90] (got '" + v + "')");
-      }
+      a.gravity_sigma_deg = real(0.0, 90.0, "degrees");
     } else if (k == "--odometry-sigma") {
-      const std::string v = value();
-      char* end = nullptr;
-      a.odometry_sigma = std::strtod(v.c_str(), &end);
-      if (end == v.c_str() || *end != '\0' ||
-          !(a.odometry_sigma >= 0.0 && a.odometry_sigma <= 1.0)) {
-        throw ecar::Error("option --odometry-sigma needs a fraction in [0, 1] (got '" + v + "')");
-      }
+      a.odometry_sigma = real(0.0, 1.0, "a fraction");
     } else if (k == "--odometry-walk") {
-      const std::string v = value();
-      char* end = nullptr;
-      a.odometry_walk = std::strtod(v.c_str(), &end);
-      if (end == v.c_str() || *end != '\0' || !(a.odometry_walk >= 0.0 && a.odometry_walk <= 1.0)) {
-        throw ecar::Error("option --odometry-walk needs metres per sqrt(m) in [0, 1] (got '" + v +
-                          "')");
-      }
+      a.odometry_walk = real(0.0, 1.0, "metres per sqrt(m)");
     } else if (k == "--ba-whole-map") {
-      const std::string v = value();
-      char* end = nullptr;
-      const long n = std::strtol(v.c_str(), &end, 10);
-      if (end == v.c_str() || *end != '\0' || n < 0 || n > 500) {
-        throw ecar::Error("option --ba-whole-map needs a keyframe count in [0, 500] (got '" + v +
-                          "')");
-      }
-      a.ba_whole_map = static_cast<int>(n);
+      a.ba_whole_map = integer(0, 500);
     } else if (k == "--help" || k == "-h") {
       usage(std::cout);
       std::exit(0);
