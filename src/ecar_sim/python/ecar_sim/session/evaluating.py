@@ -12,6 +12,7 @@ plane parts of the summary are structure.py's.
 """
 
 import csv
+import functools
 import json
 import math
 import os
@@ -58,12 +59,31 @@ def write_tum(path, poses, times):
                                                                    tuple(q)))
 
 
+@functools.lru_cache(maxsize=None)
+def ros_executable(package, name):
+    """The command that runs a package's executable: its path in the workspace (catkin's
+    libexec folders, where rosrun looks), found once per process; ["rosrun", package, name]
+    when catkin_find does not know it. (rosrun costs about 0.5 s per call on this machine: a
+    session evaluates four trajectories per device.)"""
+    try:
+        r = subprocess.run(["catkin_find", "--without-underlays", "--libexec", package],
+                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        folders = r.stdout.split() if r.returncode == 0 else []
+    except OSError:
+        folders = []
+    for folder in folders:
+        path = os.path.join(folder, name)
+        if os.path.isfile(path) and os.access(path, os.X_OK):
+            return (path,)
+    return ("rosrun", package, name)
+
+
 def ate(gt, est, env, sim3):
     """ATE RMSE (m) of a TUM trajectory against ground truth (ecar_eval_traj, SE(3) or Sim(3)
     alignment), or None when it cannot be computed."""
     summary = est + (".sim3.json" if sim3 else ".se3.json")
-    cmd = ["rosrun", "ecar_core", "ecar_eval_traj", gt, est, "--summary", summary,
-           "--sim3" if sim3 else "--se3"]
+    cmd = list(ros_executable("ecar_core", "ecar_eval_traj")) + [
+        gt, est, "--summary", summary, "--sim3" if sim3 else "--se3"]
     r = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     if r.returncode != 0:
         return None
