@@ -143,6 +143,8 @@ ecar_msgs::RoundTripMetrics toMsg(const ecar_msgs::LocalGraph& graph, const Roun
   m.download_time = seconds(trip.received - graph.server_sent);
   m.tracking_time_device = trip.tracking_time_device;
   m.tracking_cpu_time_device = trip.tracking_cpu_time_device;
+  m.jpeg_quality = trip.jpeg_quality;
+  m.upload_budget = trip.upload_budget;
   return m;
 }
 

@@ -177,6 +177,8 @@ TEST(RoundTripMetricsTest, LatencyPartsAndBytes) {
   t.received = ros::Time(10, 35000000);
   t.tracking_time_device = 0.008f;
   t.tracking_cpu_time_device = 0.007f;
+  t.jpeg_quality = 35;
+  t.upload_budget = 87500;
   const auto m = toMsg(g, t);
   EXPECT_EQ(m.frame_index, 16u);
   EXPECT_EQ(m.bytes_up, 20000u);
@@ -191,6 +193,8 @@ TEST(RoundTripMetricsTest, LatencyPartsAndBytes) {
   EXPECT_FLOAT_EQ(m.tracking_time_device, 0.008f);
   EXPECT_FLOAT_EQ(m.tracking_cpu_time_device, 0.007f);
   EXPECT_FLOAT_EQ(m.server_cpu_time, 0.011f);
+  EXPECT_EQ(m.jpeg_quality, 35u);
+  EXPECT_EQ(m.upload_budget, 87500u);
   EXPECT_EQ(m.header.stamp, t.received);
   g.sync_mode = ecar_msgs::LocalGraph::SYNC_EDGESLAM;
   g.map_points.resize(7);

@@ -6,7 +6,9 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <functional>
+#include <string>
 #include <utility>
 
 #include <boost/make_shared.hpp>
@@ -36,6 +38,13 @@ using device_internal::kWarnPeriod;
 
 const char* stateName(ecar::TrackingState s) { return ecar::toString(s); }
 
+ecar::UploadQualityConfig qualityConfig(const DeviceConfig& config) {
+  ecar::UploadQualityConfig c;
+  c.max_quality = std::clamp(config.jpeg_quality, 1, 100);
+  c.min_quality = std::clamp(config.min_jpeg_quality, 1, c.max_quality);
+  return c;
+}
+
 /// Runs a function once on the callback queue it is added to.
 class CallOnce : public ros::CallbackInterface {
  public:
@@ -56,6 +65,7 @@ Device::Device(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const Devi
       nh_(nh),
       pnh_(pnh),
       camera_frame_(config.device_id + "/camera"),
+      upload_quality_(qualityConfig(config)),
       objects_(config.objects, config.device_id),
       image_transport_(nh),
       connect_nh_(nh) {
@@ -137,6 +147,7 @@ void Device::onReconfigure(const DeviceTuningConfig& tuning) {
   }
   config_.every = tuning.every;
   config_.jpeg_quality = tuning.jpeg_quality;
+  upload_quality_.setMaxQuality(tuning.jpeg_quality);
   config_.ar_view.draw_points = tuning.draw_points;
   config_.ar_view.draw_objects = tuning.draw_objects;
   config_.ar_view.draw_status = tuning.draw_status;
@@ -289,10 +300,20 @@ void Device::upload(const cv::Mat& gray, const std_msgs::Header& header,
   c.camera_frame = camera_frame_;
   c.frame_index = header.seq;
   c.stamp = header.stamp;
-  if (jpeg) {
+  int quality = upload_quality_.next();
+  if (jpeg && quality >= light_cache_quality_) {
     c.jpeg = *jpeg;
   } else {
-    cv::imencode(".jpg", gray, jpeg_, {cv::IMWRITE_JPEG_QUALITY, config_.jpeg_quality});
+    cv::imencode(".jpg", gray, jpeg_, {cv::IMWRITE_JPEG_QUALITY, quality});
+    if (upload_quality_.budget() > 0.0 && !upload_quality_.hasSize()) {
+      // The first upload within a budget: its size at this quality tells the
+      // quality that fits.
+      upload_quality_.observe(quality, jpeg_.size());
+      if (upload_quality_.next() < quality) {
+        quality = upload_quality_.next();
+        cv::imencode(".jpg", gray, jpeg_, {cv::IMWRITE_JPEG_QUALITY, quality});
+      }
+    }
     c.jpeg = jpeg_;
   }
   c.gravity_c = gravity_c_;
@@ -308,6 +329,8 @@ void Device::upload(const cv::Mat& gray, const std_msgs::Header& header,
   reset_next_ = false;
   Pending p;
   p.frame_index = c.frame_index;
+  p.jpeg_quality = jpeg && quality >= light_cache_quality_ ? light_cache_quality_ : quality;
+  p.upload_budget = static_cast<uint32_t>(upload_quality_.budget());
   if (!free_images_.empty()) {
     p.gray = std::move(free_images_.back());
     free_images_.pop_back();
@@ -336,6 +359,7 @@ void Device::publishHeldUpload() {
     if (it->frame_index != msg.frame_index) continue;
     it->sent = msg.sent;
     it->bytes_up = ecar_bridge::wireBytes(msg);
+    upload_quality_.sent(it->jpeg_quality, it->bytes_up, ros::WallTime::now().toSec());
     break;
   }
   upload_pub_.publish(msg);
@@ -451,6 +475,20 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
     reset_next_ = false;  // the server forgot what we held too: this graph has it all
   }
   if (msg->map_id != 0) map_id_ = msg->map_id;
+  upload_quality_.setBudget(msg->upload_budget);
+  // Logged when the quality moves by 10 or more, or back to ~jpeg_quality.
+  const int quality = upload_quality_.next();
+  if (reported_quality_ == 0) reported_quality_ = config_.jpeg_quality;
+  if (quality != reported_quality_ &&
+      (std::abs(quality - reported_quality_) >= 10 || quality == config_.jpeg_quality)) {
+    const std::string budget =
+        msg->upload_budget > 0 ? std::to_string(msg->upload_budget / 1000) + " kB/s" : "none";
+    ROS_INFO("%s: uploading at JPEG %d (budget %s, %.1f uploads/s, %.1f kB each%s)", id, quality,
+             budget.c_str(), upload_quality_.rate(),
+             upload_quality_.predictedBytes(quality) / 1000.0,
+             upload_quality_.overBudget() ? "; over the budget at ~min_jpeg_quality" : "");
+    reported_quality_ = quality;
+  }
   if (!graph.planes.empty() || !graph.objects.empty() || !graph.removed_planes.empty()) {
     objects_.applyGraph(graph.planes, graph.objects, graph.removed_planes);
     noteObjectArrivals();
@@ -470,6 +508,8 @@ void Device::onLocalGraph(const ecar_msgs::LocalGraphConstPtr& msg) {
   trip.received = received;
   trip.tracking_time_device = it->tracking_time;
   trip.tracking_cpu_time_device = it->tracking_cpu_time;
+  trip.jpeg_quality = static_cast<uint8_t>(std::clamp(it->jpeg_quality, 0, 100));
+  trip.upload_budget = it->upload_budget;
   const ecar_msgs::RoundTripMetrics metrics = ecar_bridge::toMsg(*msg, trip);
   metrics_pub_.publish(metrics);
   global_metrics_pub_.publish(metrics);

@@ -29,6 +29,9 @@ void DeviceConfig::validate() const {
   }
   if (every < 1) fail("every", "must be >= 1");
   if (jpeg_quality < 1 || jpeg_quality > 100) fail("jpeg_quality", "must be in [1, 100]");
+  if (min_jpeg_quality < 1 || min_jpeg_quality > 100) {
+    fail("min_jpeg_quality", "must be in [1, 100]");
+  }
   if (!sync_mode.empty() && sync_mode != "ecar" && sync_mode != "edgeslam") {
     fail("sync_mode", "must be \"\", \"ecar\" or \"edgeslam\", got \"" + sync_mode + "\"");
   }
@@ -84,6 +87,7 @@ DeviceConfig parseDeviceConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("device_id", &c.device_id);
   r.read("every", &c.every);
   r.read("jpeg_quality", &c.jpeg_quality);
+  r.read("min_jpeg_quality", &c.min_jpeg_quality);
   r.read("sync_mode", &c.sync_mode);
   r.read("max_pending", &c.max_pending);
   r.read("max_in_flight", &c.max_in_flight);

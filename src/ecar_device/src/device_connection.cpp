@@ -136,6 +136,7 @@ void Device::connect() {
   }
   std::lock_guard<std::mutex> lock(mutex_);
   session_ = srv.response.session;
+  upload_quality_.setBudget(srv.response.upload_budget);
   if (!srv.response.upload_topic.empty() && srv.response.upload_topic != upload_topic_) {
     upload_topic_ = srv.response.upload_topic;
     upload_pub_ = nh_.advertise<ecar_msgs::Upload>(upload_topic_, 4);

@@ -43,6 +43,7 @@ void Device::startLight() {
   cache.max_frames = static_cast<size_t>(light.max_frames);
   cache.dir = light.cache_dir;
   light_cache_ = ecar::UploadCache::build(dataset, cache);
+  light_cache_quality_ = cache.jpeg_quality;
   const auto& uploads = light_cache_->uploads();
   if (uploads.empty()) throw ecar::Error("~light/dataset: " + light.dataset + " has no frames");
   light_touches_ = dataset.touches();
@@ -62,6 +63,8 @@ void Device::startLight() {
                                                      });
   }
   light_period_ = ros::WallDuration(period);
+  upload_quality_.setNominalRate(1.0 / period);
+  upload_quality_.observe(light_cache_quality_, uploads.front().jpeg.size());
   // Ticks a tenth of the period: the uploads keep their phase within that.
   light_timer_ = nh_.createSteadyTimer(ros::WallDuration(period / kTicksPerUpload),
                                        [this](const ros::SteadyTimerEvent&) { onLightTimer(); });

@@ -37,6 +37,7 @@ TEST(DeviceConfigTest, ShippedYamlHasOnlyKnownKeysWithTheDefaults) {
   const DeviceConfig d = parseDeviceConfig(XmlRpc::XmlRpcValue(), "/device_0", nullptr);
   EXPECT_EQ(c.every, d.every);
   EXPECT_EQ(c.jpeg_quality, d.jpeg_quality);
+  EXPECT_EQ(c.min_jpeg_quality, d.min_jpeg_quality);
   EXPECT_EQ(c.sync_mode, d.sync_mode);
   EXPECT_EQ(c.max_pending, d.max_pending);
   EXPECT_DOUBLE_EQ(c.reconnect_timeout, d.reconnect_timeout);
@@ -70,6 +71,9 @@ TEST(DeviceConfigTest, BadValuesNameTheParameter) {
   p = XmlRpc::XmlRpcValue();
   p["jpeg_quality"] = 1.5;
   EXPECT_NE(errorOf(p).find("~jpeg_quality"), std::string::npos);
+  p = XmlRpc::XmlRpcValue();
+  p["min_jpeg_quality"] = 0;
+  EXPECT_NE(errorOf(p).find("~min_jpeg_quality"), std::string::npos);
   p = XmlRpc::XmlRpcValue();
   p["sync_mode"] = std::string("full");
   EXPECT_NE(errorOf(p).find("~sync_mode"), std::string::npos);

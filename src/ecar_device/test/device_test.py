@@ -8,6 +8,9 @@
 3. Offers /ecar/connect late: the device connects; uploads arrive every 4th frame with a valid
    JPEG of the camera's size, gravity (norm ~9.81), odometry, reset on the first one.
 4. Answers uploads with NOT_INITIALISED local graphs: metrics arrive with the upload's bytes.
+   Then its graphs give the device an upload budget (LocalGraph.upload_budget) that quality 70
+   does not fit: the uploads shrink to within it (metrics name the lower quality); without a
+   budget they are at quality 70 again.
 5. Sends bad graphs (another device, NaN pose, unknown frame): the device keeps running.
 6. Stops answering: the device connects again within a few reconnect timeouts and sets reset.
 7. Answers with OK graphs in map 3 (its device frames name map 3 from then on; the ground-truth pose, no points: the device does not track, so touch
@@ -137,6 +140,7 @@ class DeviceTest(unittest.TestCase):
         self.metrics = []
         self.connects = []
         self.answer = True
+        self.budget = 0         # step 4: LocalGraph.upload_budget, bytes/s
         self.ok_graphs = False  # step 7: OK graphs with the ground-truth pose and the floor
         self.objects = []       # VOs the fake server puts into its graphs
         self.last_pose = None   # ground-truth pose of the latest OK graph
@@ -185,6 +189,8 @@ class DeviceTest(unittest.TestCase):
                     g.map_id = 3
                     self.last_pose = pose
             g.map_epoch = 7
+            with self.lock:
+                g.upload_budget = self.budget
             g.upload_sent = msg.sent
             g.server_received = rospy.Time.now()
             g.server_sent = rospy.Time.now()
@@ -267,6 +273,40 @@ class DeviceTest(unittest.TestCase):
         with self.lock:
             uploaded = [f for f in self.frames if f.uploaded]
         self.assertGreater(len(uploaded), 0)
+        self.assertEqual(m.jpeg_quality, 70)
+        self.assertEqual(m.upload_budget, 0)
+
+        # 4b. A budget of 180 kB/s, 24 kB per upload at 7.5 per second (quality 70 makes about
+        # 50 kB of these frames, quality 10 about 16): the device lowers its quality to fit, and
+        # restores it after.
+        budget = 180000
+        with self.lock:
+            at70 = [len(u.image.data) for _, u in self.uploads[-5:]]
+            self.budget = budget
+            n = len(self.metrics)
+        self.assertGreater(min(at70), 1.5 * budget / 7.5, at70)
+        self.wait_for(lambda: len(self.metrics) >= n + 15, 10.0, "graphs with a budget")
+        with self.lock:
+            budgeted = [m for m in self.metrics[n:] if m.upload_budget == budget]
+            by_frame = {u.frame_index: (t, len(u.image.data)) for t, u in self.uploads}
+        self.assertGreaterEqual(len(budgeted), 10)
+        late = budgeted[-8:]
+        qualities = [m.jpeg_quality for m in late]
+        self.assertTrue(all(10 < q < 70 for q in qualities), qualities)
+        # Bytes per second at the rate the device uploads (7.5/s when it keeps up).
+        times = [by_frame[m.frame_index][0] for m in late]
+        sizes = [by_frame[m.frame_index][1] for m in late]
+        rate = (len(late) - 1) / (times[-1] - times[0])
+        sent = rate * sum(sizes) / len(sizes)
+        print("[device_test] budget %d B/s: %.2f uploads/s of %s B at quality %s: %.0f B/s"
+              % (budget, rate, sizes, qualities, sent))
+        self.assertLessEqual(sent, 1.1 * budget, (rate, sizes, qualities))
+        self.assertGreater(sent, 0.7 * budget, (rate, sizes, qualities))
+        with self.lock:
+            self.budget = 0
+            n = len(self.metrics)
+        self.wait_for(lambda: len(self.metrics) >= n + 4 and self.metrics[-1].jpeg_quality == 70,
+                      10.0, "quality 70 again without a budget")
 
         # 5. Bad graphs are dropped; the device keeps going.
         bad = LocalGraph(device_id="device_99", frame_index=uploads[-1].frame_index)

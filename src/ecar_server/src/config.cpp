@@ -1,5 +1,6 @@
 #include "ecar_server/config.h"
 
+#include <cmath>
 #include <filesystem>
 
 #include "ecar_core/common/error.h"
@@ -30,6 +31,12 @@ void ServerConfig::validate() const {
   if (upload_queue_size < 1) fail("upload_queue_size", "must be >= 1");
   if (device_queue_size < 1) fail("device_queue_size", "must be >= 1");
   if (graph_queue_size < 1) fail("graph_queue_size", "must be >= 1");
+  if (!(uplink_capacity >= 0.0) || !std::isfinite(uplink_capacity)) {
+    fail("uplink_capacity", "must be >= 0 bytes/s (0: unknown)");
+  }
+  if (!(uplink_utilisation > 0.0 && uplink_utilisation <= 1.0)) {
+    fail("uplink_utilisation", "must be in (0, 1]");
+  }
   if (keyframe_queue < 1) fail("keyframe_queue", "must be >= 1");
   if (!(marker_rate >= 0.0) || marker_rate > 100.0) fail("marker_rate", "must be in [0, 100] Hz");
   if (!(position_tolerance >= 0.0) || position_tolerance > 0.1) {
@@ -170,6 +177,13 @@ ecar::GlobalGraphConfig ServerConfig::graphConfig(uint32_t first_epoch) const {
   c.devices.default_keyframe_queue = static_cast<size_t>(keyframe_queue);
   c.devices.device_timeout = device_timeout;
   c.devices.max_devices = static_cast<size_t>(max_devices);
+  return c;
+}
+
+ecar::UplinkShareConfig ServerConfig::uplinkShareConfig() const {
+  ecar::UplinkShareConfig c;
+  c.capacity = uplink_capacity;
+  c.utilisation = uplink_utilisation;
   return c;
 }
 

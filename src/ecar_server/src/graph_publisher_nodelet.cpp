@@ -3,9 +3,12 @@
 // from GridConnection), composes the device's local graph from what the device
 // holds (its DeviceSyncState, kept here) and publishes it on
 // /<device>/local_graph with the timing fields. A graph of an upload aligned in
-// a map that was loaded since is not sent. The resend tolerances and the plane
-// refresh are live-tunable (dynamic_reconfigure on this nodelet's namespace,
-// /edge_server/graph_publisher; cfg/GraphPublisher.cfg).
+// a map that was loaded since is not sent. Each graph carries its device's
+// share of the devices' uplink (upload_budget, ecar::UplinkShare) when the
+// server knows the link's capacity (uplink_capacity). The resend tolerances,
+// the plane refresh and the uplink keys are live-tunable (dynamic_reconfigure
+// on this nodelet's namespace, /edge_server/graph_publisher; cfg/GraphPublisher.cfg).
+#include <algorithm>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -48,6 +51,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
   void onDeviceRemoved(const ecar::DeviceInfo& device) override {
     std::lock_guard<std::mutex> lock(mutex_);
     devices_.erase(device.name);
+    uplink_.remove(device.name);
   }
 
  private:
@@ -79,6 +83,9 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
       initial.plane_resend_angle_deg = c.plane_resend_angle_deg;
       initial.plane_resend_offset = c.plane_resend_offset;
       initial.plane_resend_extent = c.plane_resend_extent;
+      initial.uplink_capacity = config_.uplink_capacity;
+      initial.uplink_utilisation = config_.uplink_utilisation;
+      uplink_ = ecar::UplinkShare(config_.uplinkShareConfig());
       std::lock_guard<boost::recursive_mutex> lock(reconfigure_mutex_);
       reconfigure_->updateConfig(initial);
     }
@@ -101,15 +108,23 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
     next.plane_resend_angle_deg = c.plane_resend_angle_deg;
     next.plane_resend_offset = c.plane_resend_offset;
     next.plane_resend_extent = c.plane_resend_extent;
+    ecar::UplinkShareConfig uplink = config_.uplinkShareConfig();
+    uplink.capacity = c.uplink_capacity;
+    uplink.utilisation = c.uplink_utilisation;
     try {
       auto composer = std::make_shared<const ecar::LocalGraphComposer>(next);
+      ecar::UplinkShare share(uplink);
       std::lock_guard<std::mutex> lock(mutex_);
       composer_ = std::move(composer);
+      if (uplink.capacity != uplink_.config().capacity ||
+          uplink.utilisation != uplink_.config().utilisation) {
+        uplink_ = std::move(share);
+      }
       NODELET_INFO(
           "local graphs: position tolerance %.4f m / %.3f deg / %.3f of depth, plane "
-          "refresh every %d graphs",
+          "refresh every %d graphs; uplink %.0f B/s at utilisation %.2f",
           next.position_tolerance, next.position_tolerance_deg, next.position_tolerance_depth,
-          next.plane_refresh);
+          next.plane_refresh, uplink.capacity, uplink.utilisation);
     } catch (const ecar::Error& e) {
       NODELET_WARN("reconfigure refused: %s", e.what());
     }
@@ -168,6 +183,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
     lookups.plane_exists = [this](ecar::PlaneId id) { return graph_->planes().contains(id); };
     std::optional<ecar::LocalGraph> graph;
     ros::Publisher pub;
+    double budget = 0.0;
     try {
       // The device's state is used by this one callback at a time; the lock
       // only guards the map of devices against connects and removals.
@@ -179,6 +195,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
         it->second.state = ecar::DeviceSyncState(info->keyframe_queue);  // reconnected, new queue
       }
       graph = composer->compose(slam->map(), in, lookups, &it->second.state);
+      budget = uplink_.onUpload(device, frame_msg.server_received.toSec());
     } catch (const ecar::Error& e) {
       NODELET_WARN_THROTTLE(2.0, "device %s: local graph %u not composed: %s: dropped",
                             device.c_str(), frame_msg.frame_index, e.what());
@@ -194,6 +211,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
       return;
     }
     out->header.stamp = frame_msg.header.stamp;
+    out->upload_budget = static_cast<uint32_t>(std::min(budget, 4e9));
     out->upload_sent = frame_msg.upload_sent;
     out->server_received = frame_msg.server_received;
     out->receive_time = frame_msg.receive_time;
@@ -210,8 +228,9 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
   ros::Subscriber visible_sub_;
   boost::recursive_mutex reconfigure_mutex_;
   std::unique_ptr<dynamic_reconfigure::Server<GraphPublisherConfig>> reconfigure_;
-  std::mutex mutex_;  // guards devices_ and composer_
+  std::mutex mutex_;  // guards devices_, composer_ and uplink_
   std::map<std::string, Device> devices_;
+  ecar::UplinkShare uplink_;
   std::shared_ptr<const ecar::LocalGraphComposer> composer_;
 };
 

@@ -42,6 +42,8 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("upload_queue_size", &c.upload_queue_size);
   r.read("device_queue_size", &c.device_queue_size);
   r.read("graph_queue_size", &c.graph_queue_size);
+  r.read("uplink_capacity", &c.uplink_capacity);
+  r.read("uplink_utilisation", &c.uplink_utilisation);
   r.read("keyframe_queue", &c.keyframe_queue);
   r.read("marker_rate", &c.marker_rate);
   r.read("position_tolerance", &c.position_tolerance);

@@ -36,6 +36,8 @@ TEST(ServerConfigTest, ShippedYamlHasOnlyKnownKeysWithTheDefaults) {
   EXPECT_EQ(c.background_nice, d.background_nice);
   EXPECT_EQ(c.loop_by_odometry, d.loop_by_odometry);
   EXPECT_DOUBLE_EQ(c.loop_odometry_max_gap, d.loop_odometry_max_gap);
+  EXPECT_DOUBLE_EQ(c.uplink_capacity, d.uplink_capacity);
+  EXPECT_DOUBLE_EQ(c.uplink_utilisation, d.uplink_utilisation);
 }
 
 TEST(ServerConfigTest, UnknownKeysAndWrongTypesAreNamed) {
@@ -86,6 +88,12 @@ TEST(ServerConfigTest, InvalidValuesNameTheirKey) {
   c = ServerConfig();
   c.marker_rate = -2;
   expectKey(c, "marker_rate");
+  c = ServerConfig();
+  c.uplink_capacity = -1.0;
+  expectKey(c, "uplink_capacity");
+  c = ServerConfig();
+  c.uplink_utilisation = 0.0;
+  expectKey(c, "uplink_utilisation");
   c = ServerConfig();
   c.graph_plane_refresh = 0;
   expectKey(c, "planes/graph_plane_refresh");

@@ -477,6 +477,9 @@ class ServerTest(unittest.TestCase):
         res = device.connect()
         self.assertTrue(res.accepted, res.message)
         self.assertNotEqual(res.session, 0)
+        # The uplink_capacity's share of the one device connected (uplink_utilisation 0.5).
+        budget = rospy.get_param("~upload_budget", 0)
+        self.assertEqual(res.upload_budget, budget)
         self.assertTrue(wait_subscribed(device.pub), "the server did not subscribe the upload topic")
         # Sessions: another node cannot take the live name, disconnect it, or speak as a
         # reserved user; the device itself reconnects with its token.
@@ -524,6 +527,7 @@ class ServerTest(unittest.TestCase):
         # Bad uploads got no graph (frame i + 1 was never uploaded well).
         for i in good:
             self.assertNotIn(i + 1, device.graphs, "a bad upload was answered")
+        self.assertEqual({m.upload_budget for m, _ in answered.values()}, {budget})
         share, n = self.tracked_share(answered)
         self.assertGreaterEqual(share, 0.9, "tracked %.0f%% of %d uploads after init"
                                 % (100 * share, n))

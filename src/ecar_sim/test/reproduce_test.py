@@ -18,7 +18,7 @@ def row(mode, devices, latency):
     r = {k: 1.0 for k in scaling.FIELDS}
     r.update(mode=mode, devices=devices, latency_scaled_ms_median=latency,
              latency_ms_median=4 * latency, latency_ms_p95=8 * latency, up_utilisation=0.25,
-             upload_bytes_median=49000)
+             upload_bytes_median=49000, upload_quality_median=70, server_ate_cm_median=1.5)
     return r
 
 
@@ -26,7 +26,7 @@ class ReproduceTest(unittest.TestCase):
     def test_section_has_every_point_and_the_papers(self):
         rows = [row("ecar", 1, 23.2), row("ecar", 20, 393.8), row("edgeslam", 1, 42.5)]
         text = scaling.section(rows, 200, 0.25, 70)
-        self.assertIn("| ecar | 1 | 23.2 | 92.8 | 185.6 | 25% | 49000 | 53 |", text)
+        self.assertIn("| ecar | 1 | 23.2 | 92.8 | 185.6 | 25% | 49000 | 70 | 1.50 | 53 |", text)
         self.assertIn("| ecar | 20 | 393.8 |", text)
         self.assertIn("| 69 |", text)
         self.assertIn("| edgeslam | 1 | 42.5 |", text)
@@ -55,7 +55,8 @@ class ReproduceTest(unittest.TestCase):
                 w.writerows(rows)
             text = scaling.report(tmp)
             self.assertTrue(os.path.exists(os.path.join(tmp, "e2_latency.png")))
-        self.assertIn("| edgeslam | 20 | 200.0 | 800.0 | 1600.0 | 25% | 49000 | 111 |", text)
+        self.assertIn("| edgeslam | 20 | 200.0 | 800.0 | 1600.0 | 25% | 49000 | 70 | 1.50 | 111 |",
+                      text)
         self.assertIn("200 frames each (every 4th uploaded at JPEG 70)", text)
 
     def test_plots_are_written(self):

@@ -164,6 +164,9 @@ class LaunchTest(unittest.TestCase):
         self.assertFalse(any(a.startswith("config:=") for a in server.command()))
         cfg = types.SimpleNamespace(**dict(vars(self.ARGS), server_config="/c/s.yaml"))
         self.assertIn("config:=/c/s.yaml", launching.server_include(cfg).command())
+        self.assertFalse(any(a.startswith("uplink_capacity:=") for a in server.command()))
+        self.assertIn("uplink_capacity:=875000",
+                      launching.server_include(self.ARGS, 875000.0).command())
         dev = launching.device_include(self.ARGS, "device_2").command()
         self.assertIn("device:=device_2", dev)
         self.assertIn("pace_in_flight:=1", dev)

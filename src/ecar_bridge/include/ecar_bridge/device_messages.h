@@ -88,13 +88,16 @@ struct RoundTrip {
   ros::Time received;                    ///< local graph received (device clock)
   float tracking_time_device = 0.f;      ///< s, the device's tracking of the uploaded frame
   float tracking_cpu_time_device = 0.f;  ///< s of the device thread's CPU for that tracking
+  uint8_t jpeg_quality = 0;              ///< the upload's JPEG quality
+  uint32_t upload_budget = 0;            ///< bytes/s in force when it was sent (0: none)
 };
 
 /// Metrics of the round trip that `graph` ends: bytes (wireBytes of the graph
 /// down), latency = received - sent, upload_time = server_received - sent,
 /// server_time, server_cpu_time and align_time (its tracking_time) from the graph,
 /// download_time = received - server_sent;
-/// points = points (ecar) or map_points (edgeslam).
+/// points = points (ecar) or map_points (edgeslam); the trip's own fields
+/// (bytes_up, device times, jpeg_quality, upload_budget) as they are.
 ecar_msgs::RoundTripMetrics toMsg(const ecar_msgs::LocalGraph& graph, const RoundTrip& trip);
 
 }  // namespace ecar_bridge

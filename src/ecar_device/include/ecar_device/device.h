@@ -62,6 +62,7 @@
 #include "ecar_core/device/device_objects.h"
 #include "ecar_core/device/device_tracker.h"
 #include "ecar_core/device/upload_cache.h"
+#include "ecar_core/device/upload_quality.h"
 #include "ecar_core/device/upload_schedule.h"
 #include "ecar_device/DeviceTuningConfig.h"
 
@@ -72,6 +73,8 @@ struct DeviceConfig {
   std::string device_id;  ///< ~device_id: default the node's namespace without '/'
   int every = 4;          ///< ~every: upload every Nth camera frame (header.seq % every == 0)
   int jpeg_quality = 70;  ///< ~jpeg_quality: 1..100
+  /// ~min_jpeg_quality: 1..100, the floor of an uplink budget (LocalGraph.upload_budget)
+  int min_jpeg_quality = 10;
   std::string sync_mode;  ///< ~sync_mode: "" (server default), "ecar" or "edgeslam"
   int max_pending = 8;    ///< ~max_pending: uploaded frames kept waiting for their graph
   /// ~max_in_flight: an upload that is due waits (its slot's later frames stay
@@ -161,6 +164,8 @@ class Device {
     ros::Time sent;
     cv::Mat gray;  ///< the device's own uncompressed image
     uint32_t bytes_up = 0;
+    int jpeg_quality = 0;           ///< its JPEG's quality
+    uint32_t upload_budget = 0;     ///< bytes/s in force when it was sent (0: none)
     float tracking_time = 0.f;      ///< s, the device's tracking of this frame
     float tracking_cpu_time = 0.f;  ///< s of the tracking thread's CPU for it
   };
@@ -200,9 +205,10 @@ class Device {
   void onReconfigure(const DeviceTuningConfig& tuning);
 
   // The following helpers need mutex_ held.
-  /// JPEG-encodes an upload of `gray` (or takes `jpeg`, already encoded) and
-  /// keeps the frame pending; publishes it at once, or holds it until the
-  /// odometry with the image's stamp comes.
+  /// JPEG-encodes an upload of `gray` at upload_quality_'s quality (or takes
+  /// `jpeg`, already encoded at light_cache_quality_, when that quality is
+  /// not lower) and keeps the frame pending; publishes it at once, or holds it
+  /// until the odometry with the image's stamp comes.
   void upload(const cv::Mat& gray, const std_msgs::Header& header,
               const std::vector<uint8_t>* jpeg = nullptr);
   /// Publishes the held upload (sent = now) and records its bytes.
@@ -263,6 +269,9 @@ class Device {
   std::deque<Pending> pending_;
   std::vector<cv::Mat> free_images_;  ///< buffers of released pending frames
   ecar::UploadSchedule upload_schedule_;
+  /// Each upload's JPEG quality, within the server's budget (LocalGraph.upload_budget).
+  ecar::UploadQuality upload_quality_;
+  int reported_quality_ = 0;  ///< the quality last logged
   bool has_last_seq_ = false;
   uint32_t last_seq_ = 0;
   std::optional<uint32_t> held_done_;
@@ -310,6 +319,7 @@ class Device {
   uint32_t light_seq_ = 0;        ///< header.seq of the upload just played
   bool light_started_ = false;
   size_t light_blocked_ = 0;              ///< uploads not sent for ~max_in_flight
+  int light_cache_quality_ = 0;           ///< the cached JPEGs' quality (lower: encoded again)
   ros::WallTime light_joined_;            ///< when the server joined our topics (0: not yet)
   std::optional<ros::Time> light_start_;  ///< from ~light/start_topic
   ros::Subscriber light_start_sub_;

@@ -5,6 +5,7 @@
 
 #include <string>
 
+#include "ecar_core/device/upload_quality.h"
 #include "ecar_core/server/global_graph.h"
 #include "ecar_core/server/grid_connection.h"
 #include "ecar_core/sync/local_graph_composer.h"
@@ -39,6 +40,12 @@ struct ServerConfig {
   int device_queue_size = 3;
   /// Publisher queue of each /<device>/local_graph topic.
   int graph_queue_size = 10;
+  /// Bytes/s of the uplink the devices share (a speed test's figure; 0:
+  /// unknown). Each local graph then gives its device a budget:
+  /// uplink_capacity * uplink_utilisation over the devices uploading
+  /// (LocalGraph.upload_budget, ecar::UplinkShare).
+  double uplink_capacity = 0.0;
+  double uplink_utilisation = 0.5;  ///< (0, 1]
   /// Device keyframe queue length assumed when Connect.keyframe_queue is 0.
   int keyframe_queue = 10;
   /// /ecar/markers rate (Hz); 0 disables the markers (tf is still published).
@@ -171,6 +178,8 @@ struct ServerConfig {
   ecar::GlobalGraphConfig graphConfig(uint32_t first_epoch) const;
   /// What goes in local graphs (the resend tolerances and refresh).
   ecar::LocalGraphComposerConfig composerConfig() const;
+  /// The devices' uplink share (uplink_capacity, uplink_utilisation).
+  ecar::UplinkShareConfig uplinkShareConfig() const;
   /// The grid connection's options (keyframe planes, objects looked for).
   ecar::GridConnectionConfig gridConnectionConfig() const;
 

@@ -111,6 +111,7 @@ class Records:
             "device_tracking_ms": 1e3 * m.tracking_time_device,
             "server_cpu_ms": 1e3 * m.server_cpu_time,
             "device_tracking_cpu_ms": 1e3 * m.tracking_cpu_time_device,
+            "jpeg_quality": m.jpeg_quality, "upload_budget": m.upload_budget,
         }
         with self.lock:
             self.metrics.append(row)

@@ -28,7 +28,7 @@ from ecar_sim.session.datasets import read_frame_times
 METRICS_FIELDS = ["device", "frame", "bytes_up", "bytes_down", "points", "positions",
                   "latency_ms", "upload_ms", "server_ms", "receive_ms", "align_ms",
                   "send_ms", "download_ms", "device_tracking_ms", "server_cpu_ms",
-                  "device_tracking_cpu_ms"]
+                  "device_tracking_cpu_ms", "jpeg_quality", "upload_budget"]
 
 
 def percentile(values, q):
@@ -174,6 +174,13 @@ def overall_summary(devices, records, time_scale=1.0):
             [r["bytes_down"] / r["points"] for r in with_points], 50), 2),
         "points_per_graph_median": percentile([r["points"] for r in rows], 50),
         "upload_bytes_median": percentile([r["bytes_up"] for r in rows], 50),
+        # The uploads' JPEG quality (lower than --jpeg-quality within an uplink budget) and
+        # the devices' budgets, bytes/s (0: none; in the session's time, as measured).
+        "jpeg_quality_median": percentile([r["jpeg_quality"] for r in rows
+                                           if r.get("jpeg_quality")], 50),
+        "jpeg_quality_min": min([r["jpeg_quality"] for r in rows if r.get("jpeg_quality")],
+                                default=None),
+        "upload_budget_median": percentile([r.get("upload_budget", 0) for r in rows], 50),
         "latency_ms_median": rnd(percentile([r["latency_ms"] for r in rows], 50), 2),
         "latency_ms_p95": rnd(percentile([r["latency_ms"] for r in rows], 95), 2),
         "server_ms_median": rnd(percentile([r["server_ms"] for r in rows], 50), 2),
@@ -272,6 +279,7 @@ def build_summary(args, devices, pacing, per_device, overall, vo, planes, link=N
     return {
         "scene": args.scene, "devices": devices, "sync_mode": args.sync_mode,
         "every": args.every, "jpeg_quality": args.jpeg_quality, "in_flight": args.in_flight,
+        "upload_budget": getattr(args, "upload_budget", "link"),
         "light": getattr(args, "light", False),
         "workers": args.workers, "server_config": args.server_config or None,
         "vo_attach": args.vo_attach, "vo_share": args.vo_share,

@@ -236,9 +236,13 @@ class Include(collections.namedtuple("Include", "file args")):
         return "\n".join(lines + ["  </include>"])
 
 
-def server_include(args):
-    """launch/server.launch with the session's server settings; its VO database in args.out."""
+def server_include(args, uplink_capacity=None):
+    """launch/server.launch with the session's server settings; its VO database in args.out.
+    uplink_capacity: bytes/s of the devices' shared uplink (the server gives each device its
+    share of it; None: the config file's)."""
     a = [("sync_mode", args.sync_mode), ("workers", "%d" % args.workers)]
+    if uplink_capacity is not None:
+        a.append(("uplink_capacity", "%.0f" % uplink_capacity))
     if args.server_config:
         a.append(("config", args.server_config))
     # Each session has its own map, so its own VO database (not the user's).

@@ -71,6 +71,11 @@ def build_parser(description=None):
                    help="the link the server and the devices share: a profile of config/links "
                         "(loopback, campus, wifi) or a profile file; shaped links run the server "
                         "and the devices in network namespaces of their own (needs root)")
+    p.add_argument("--upload-budget", choices=("link", "off"), default="link",
+                   help="link: on a shaped --link the server knows its up rate (uplink_capacity) "
+                        "and gives each device its share, within which the device lowers its "
+                        "JPEG quality (down to min_jpeg_quality); off: no budgets, every upload "
+                        "at --jpeg-quality (what the link then does to latency)")
     p.add_argument("--server-config", default="",
                    help="server parameter file instead of config/server.yaml (for A/B runs)")
     p.add_argument("--datasets", default=os.path.join(REPO_ROOT, "out", "datasets"),

@@ -92,6 +92,14 @@ def progress_text(collector, frames, fps, elapsed, every=1):
                          {d: p.graphs for d, p in prog.items()}, rate)
 
 
+def uplink_capacity(args, profile):
+    """The uplink capacity the server is told (bytes/s, in the session's scaled time): the
+    shaped link's up rate with --upload-budget link, else None (the server's config file)."""
+    if getattr(args, "upload_budget", "link") != "link" or not profile.shaped:
+        return None
+    return profile.up_bytes_per_s
+
+
 def start_nodes(args, hosts, envs, port, devices, datasets, procs):
     """The ROS master (on port) and the server on the server host, the devices on the devices
     host; returns once the server's /ecar/connect is up. Also writes the session's launch
@@ -100,7 +108,7 @@ def start_nodes(args, hosts, envs, port, devices, datasets, procs):
                 envs["server"])
     master = launching.wait_for_master(envs["server"]["ROS_MASTER_URI"], MASTER_TIMEOUT_S,
                                        procs)
-    server = launching.server_include(args)
+    server = launching.server_include(args, uplink_capacity(args, hosts.profile))
     if args.light:
         device_includes = {"light_devices": launching.light_devices_include(args, devices,
                                                                            datasets)}
