@@ -1,6 +1,8 @@
 // A light device (~light/dataset), as the paper's device simulators: no camera
-// topics and no image encoding. It plays the uploads of a dataset, encoded once
-// into an ecar::UploadCache, at the dataset's upload rate (times ~light/rate),
+// topics, and no image encoding unless an upload budget asks for a quality
+// below the cache's (the cached image is then encoded again at that quality,
+// about 2 ms). It plays the uploads of a dataset, encoded once into an
+// ecar::UploadCache, at the dataset's upload rate (times ~light/rate),
 // uploads each exactly as a full device does, and tracks only those frames, so
 // its keyframe queue is built from the local graphs as on a full device. The
 // dataset's scripted touches are replayed at the uploaded frames (those of the
