@@ -12,9 +12,9 @@
 //
 // The size of an upload at quality q is predicted as c * r(q): r is JPEG's
 // relative size against quality 70 (a fixed curve, measured on the synthetic
-// scenes and on KITTI 07, whose shapes agree within a few %), c the scene's
-// complexity, followed from the sizes of the uploads sent (an exponential
-// average of size / r(q)); the upload rate is that of the last 17 uploads.
+// scenes; KITTI 07's is within 10% of it), c the scene's complexity, followed
+// from the sizes of the uploads sent (an exponential average of size / r(q));
+// the upload rate is that of the last 17 uploads.
 //
 //   UploadQuality quality(config);
 //   quality.setBudget(graph.upload_budget);              // 0: none
