@@ -144,9 +144,18 @@ class TmpfsDisk:
         return (st.f_blocks - st.f_bfree) * st.f_frsize
 
     def fill(self):
-        """Resizes the tmpfs to the pages in use; returns them in bytes."""
-        used = max(self.used_bytes(), 4096)
-        _run(["mount", "-o", "remount,size=%d" % used, self.path])
+        """Resizes the tmpfs to the pages in use; returns them in bytes. The server may write
+        between the count and the remount, and a tmpfs refuses a size below what it holds
+        ("bad option"): then counted again, a few times."""
+        for attempt in range(5):
+            used = max(self.used_bytes(), 4096)
+            try:
+                _run(["mount", "-o", "remount,size=%d" % used, self.path])
+                break
+            except DiskError:
+                if attempt == 4:
+                    raise
+                time.sleep(0.05)
         self.full_since = time.time()
         return used
 
