@@ -301,7 +301,8 @@ void Device::upload(const cv::Mat& gray, const std_msgs::Header& header,
   c.frame_index = header.seq;
   c.stamp = header.stamp;
   int quality = upload_quality_.next();
-  if (jpeg && quality >= light_cache_quality_) {
+  const bool cached = jpeg && quality >= light_cache_quality_;
+  if (cached) {
     c.jpeg = *jpeg;
   } else {
     cv::imencode(".jpg", gray, jpeg_, {cv::IMWRITE_JPEG_QUALITY, quality});
@@ -329,7 +330,7 @@ void Device::upload(const cv::Mat& gray, const std_msgs::Header& header,
   reset_next_ = false;
   Pending p;
   p.frame_index = c.frame_index;
-  p.jpeg_quality = jpeg && quality >= light_cache_quality_ ? light_cache_quality_ : quality;
+  p.jpeg_quality = cached ? light_cache_quality_ : quality;
   p.upload_budget = static_cast<uint32_t>(upload_quality_.budget());
   if (!free_images_.empty()) {
     p.gray = std::move(free_images_.back());

@@ -38,8 +38,7 @@ class DeviceRegistryNodelet : public nodelet::Nodelet {
   void initialise() {
     ros::NodeHandle& nh = getMTNodeHandle();
     const ServerConfig config = loadServerConfig(nh);
-    uplink_capacity_ = config.uplink_capacity;
-    uplink_utilisation_ = config.uplink_utilisation;
+    uplink_ = config.uplinkShareConfig();
     graph_ = sharedGraph(nh.getNamespace(), config);
     connect_srv_ =
         nh.advertiseService(ecar_bridge::kConnectService, &DeviceRegistryNodelet::onConnect, this);
@@ -67,12 +66,7 @@ class DeviceRegistryNodelet : public nodelet::Nodelet {
     res.message = r.message;
     if (r.accepted) res.session = r.device.session;
     res.map_epoch = graph_->epoch();
-    if (r.accepted && uplink_capacity_ > 0.0) {
-      const double devices =
-          static_cast<double>(std::max<size_t>(1, graph_->devices().devices().size()));
-      res.upload_budget =
-          static_cast<uint32_t>(std::min(uplink_capacity_ * uplink_utilisation_ / devices, 4e9));
-    }
+    if (r.accepted) res.upload_budget = uplink_.budgetFor(graph_->devices().devices().size());
     if (r.accepted) {
       const ecar_bridge::DeviceTopics topics{req.device_id};
       res.upload_topic = topics.upload();
@@ -110,9 +104,9 @@ class DeviceRegistryNodelet : public nodelet::Nodelet {
   std::shared_ptr<ecar::GlobalGraph> graph_;
   ros::ServiceServer connect_srv_, disconnect_srv_;
   ros::WallTimer timer_;
-  /// The first upload budget (Connect.upload_budget): startup config's
-  /// uplink_capacity * uplink_utilisation over the connected devices.
-  double uplink_capacity_ = 0.0, uplink_utilisation_ = 0.5;
+  /// The first upload budget (Connect.upload_budget): the startup config's
+  /// share over the connected devices.
+  ecar::UplinkShareConfig uplink_;
 };
 
 }  // namespace ecar_server

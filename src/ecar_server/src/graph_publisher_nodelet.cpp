@@ -8,7 +8,6 @@
 // server knows the link's capacity (uplink_capacity). The resend tolerances,
 // the plane refresh and the uplink keys are live-tunable (dynamic_reconfigure
 // on this nodelet's namespace, /edge_server/graph_publisher; cfg/GraphPublisher.cfg).
-#include <algorithm>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -183,7 +182,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
     lookups.plane_exists = [this](ecar::PlaneId id) { return graph_->planes().contains(id); };
     std::optional<ecar::LocalGraph> graph;
     ros::Publisher pub;
-    double budget = 0.0;
+    uint32_t budget = 0;
     try {
       // The device's state is used by this one callback at a time; the lock
       // only guards the map of devices against connects and removals.
@@ -211,7 +210,7 @@ class GraphPublisherNodelet : public nodelet::Nodelet, public ecar::GraphListene
       return;
     }
     out->header.stamp = frame_msg.header.stamp;
-    out->upload_budget = static_cast<uint32_t>(std::min(budget, 4e9));
+    out->upload_budget = budget;
     out->upload_sent = frame_msg.upload_sent;
     out->server_received = frame_msg.server_received;
     out->receive_time = frame_msg.receive_time;

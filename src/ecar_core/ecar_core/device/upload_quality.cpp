@@ -152,13 +152,18 @@ UplinkShare::UplinkShare(const UplinkShareConfig& config) : config_(config) {
   }
 }
 
-double UplinkShare::onUpload(const std::string& device, double stamp) {
+uint32_t UplinkShareConfig::budgetFor(size_t devices) const {
+  if (!(capacity > 0.0)) return 0;
+  const double share = capacity * utilisation / static_cast<double>(std::max<size_t>(1, devices));
+  return static_cast<uint32_t>(std::min(share, 4e9));
+}
+
+uint32_t UplinkShare::onUpload(const std::string& device, double stamp) {
   last_upload_[device] = stamp;
   for (auto it = last_upload_.begin(); it != last_upload_.end();) {
     it = stamp - it->second > config_.active_window ? last_upload_.erase(it) : std::next(it);
   }
-  if (config_.capacity <= 0.0) return 0.0;
-  return config_.capacity * config_.utilisation / static_cast<double>(uploading(stamp));
+  return config_.budgetFor(uploading(stamp));
 }
 
 size_t UplinkShare::uploading(double now) const {

@@ -29,6 +29,7 @@
 
 #include <array>
 #include <cstddef>
+#include <cstdint>
 #include <string>
 #include <unordered_map>
 
@@ -107,6 +108,9 @@ struct UplinkShareConfig {
   double capacity = 0.0;       ///< bytes/s of the devices' shared uplink (0: unknown, no budgets)
   double utilisation = 0.5;    ///< of it, what the uploads may fill together, (0, 1]
   double active_window = 3.0;  ///< s: a device that uploaded within this is uploading
+  /// Each of `devices` devices' budget, bytes/s (0 without a capacity), as a
+  /// LocalGraph.upload_budget holds it.
+  uint32_t budgetFor(size_t devices) const;
 };
 
 /// Budgets of the devices sharing one uplink. Not thread-safe.
@@ -114,9 +118,9 @@ class UplinkShare {
  public:
   /// Throws ecar::Error naming the field of a value out of range.
   explicit UplinkShare(const UplinkShareConfig& config = UplinkShareConfig());
-  /// An upload of `device` at `stamp` (s, monotonic): its budget, bytes/s
-  /// (0 without a capacity).
-  double onUpload(const std::string& device, double stamp);
+  /// An upload of `device` at `stamp` (s, monotonic): its budget,
+  /// config().budgetFor(the devices uploading).
+  uint32_t onUpload(const std::string& device, double stamp);
   /// The device left (disconnected, timed out).
   void remove(const std::string& device) { last_upload_.erase(device); }
   /// Devices that uploaded within active_window of `now`.
