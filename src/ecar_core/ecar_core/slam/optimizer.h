@@ -1,7 +1,9 @@
-// Non-linear least squares with Ceres: pose-only optimisation for tracking and
-// local bundle adjustment for mapping. Poses are T_c_w (world to camera),
-// parameterised for Ceres as [angle-axis (3), translation (3)] blocks, so no
-// manifold is needed (works with Ceres 1.14 and 2.x). Pixels are undistorted.
+// Non-linear least squares: pose-only optimisation for tracking (a dedicated
+// Levenberg-Marquardt on the 6x6 normal equations, pose_optimizer.cpp: Ceres'
+// per-problem overhead was 4/5 of its cost) and local bundle adjustment for
+// mapping, with Ceres. Poses are T_c_w (world to camera), parameterised for
+// Ceres as [angle-axis (3), translation (3)] blocks, so no manifold is needed
+// (works with Ceres 1.14 and 2.x). Pixels are undistorted.
 #pragma once
 
 #include <cstdint>
@@ -130,7 +132,8 @@ struct ReprojectionError {
   Intrinsics K_;
 };
 
-/// Reprojection of a fixed point into a free pose [aa, t].
+/// Reprojection of a fixed point into a free pose [aa, t]: optimizePose's
+/// objective as a Ceres cost function (its reference in the tests).
 struct PoseOnlyReprojectionError {
   PoseOnlyReprojectionError(const Eigen::Vector3d& p_w, const Eigen::Vector2d& uv, double sqrt_info,
                             const Intrinsics& K)

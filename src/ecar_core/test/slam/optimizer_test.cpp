@@ -354,6 +354,61 @@ TEST(OptimizerTest, OptimizePoseRespectsInitialOutlierFlagsAndRetestsThem) {
   EXPECT_EQ(inliers[1], oracle[1]);
 }
 
+// optimizePose has its own solver; Ceres on the same objective (Huber on
+// PoseOnlyReprojectionError, one round) is the reference it must agree with.
+TEST(OptimizerTest, OptimizePoseReachesTheCeresOptimumOfItsObjective) {
+  const Intrinsics K = makeK();
+  PoseOptimizerConfig config;
+  config.rounds = 1;  // one robust round: no reclassification between solves
+  config.iterations_per_round = 50;
+  for (unsigned seed = 1; seed <= 5; ++seed) {
+    const PoseScene scene = makePoseScene(200, 0.2, seed);
+    std::mt19937 rng(300 + seed);
+    const SE3 start = perturb(scene.T_c_w, 0.10, 5.0, &rng);
+
+    SE3 T = start;
+    std::vector<bool> inliers;
+    ASSERT_TRUE(optimizePose(K, scene.obs, &T, &inliers, config).success) << seed;
+
+    double pose[6];
+    poseToParams(start, pose);
+    ceres::Problem problem;
+    for (const PoseObservation& o : scene.obs) {
+      problem.AddResidualBlock(
+          PoseOnlyReprojectionError::Create(o.p_w, o.uv, std::sqrt(o.inv_sigma2), K),
+          new ceres::HuberLoss(config.huber_delta), pose);
+    }
+    ceres::Solver::Options options;
+    options.linear_solver_type = ceres::DENSE_QR;
+    options.max_num_iterations = 200;
+    options.function_tolerance = 1e-14;
+    options.parameter_tolerance = 1e-14;
+    options.logging_type = ceres::SILENT;
+    ceres::Solver::Summary summary;
+    ceres::Solve(options, &problem, &summary);
+    ASSERT_TRUE(summary.IsSolutionUsable()) << seed;
+    const SE3 reference = paramsToPose(pose);
+    EXPECT_LT(positionError(T, reference), 1e-5) << seed;
+    EXPECT_LT(angleErrorDeg(T, reference), 1e-4) << seed;
+    EXPECT_LT(positionError(T, scene.T_c_w), 0.005) << seed;
+  }
+}
+
+// The tracker composes poses with Isometry3d::inverse() (a transpose): a
+// rotation slightly off SO(3) on the way in must come out as a rotation, or the
+// motion model amplifies the error frame after frame.
+TEST(OptimizerTest, OptimizePoseReturnsARotation) {
+  const PoseScene scene = makePoseScene(100, 0.0, 6);
+  SE3 T = scene.T_c_w;
+  T.linear() *= 1.0 + 1e-5;
+  T.linear()(0, 1) += 1e-5;
+  std::vector<bool> inliers;
+  ASSERT_TRUE(optimizePose(makeK(), scene.obs, &T, &inliers).success);
+  EXPECT_LT((T.linear() * T.linear().transpose() - Eigen::Matrix3d::Identity()).norm(), 1e-12);
+  EXPECT_NEAR(T.linear().determinant(), 1.0, 1e-12);
+  EXPECT_LT(positionError(T, scene.T_c_w), 0.002);
+}
+
 TEST(OptimizerTest, OptimizePoseIsThreadSafe) {
   const PoseScene scene = makePoseScene(150, 0.1, 4);
   std::mt19937 rng(44);
