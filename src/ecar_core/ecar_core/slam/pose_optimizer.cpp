@@ -17,12 +17,12 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Geometry>
 
+#include "ecar_core/common/geometry.h"
 #include "ecar_core/slam/optimizer.h"
 
 namespace ecar {
 namespace {
 
-using Vector6d = Eigen::Matrix<double, 6, 1>;
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
 /// As the bundle adjustment's residuals: points this close to the camera plane
@@ -131,14 +131,7 @@ Eigen::Matrix3d rotationOf(const Eigen::Matrix3d& M) {
 }
 
 Pose updated(const Pose& T, const Vector6d& step) {
-  const Eigen::Vector3d w = step.head<3>();
-  const double angle = w.norm();
-  Eigen::Matrix3d dR;
-  if (angle > 1e-12) {
-    dR = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
-  } else {
-    dR << 1.0, -w.z(), w.y(), w.z(), 1.0, -w.x(), -w.y(), w.x(), 1.0;
-  }
+  const Eigen::Matrix3d dR = expSO3(step.head<3>());
   return Pose{dR * T.R, dR * T.t + step.tail<3>()};
 }
 
