@@ -40,6 +40,10 @@ Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
   return m;
 }
 
+Eigen::Matrix3d nearestRotation(const Eigen::Matrix3d& M) {
+  return Eigen::Quaterniond(M).normalized().toRotationMatrix();
+}
+
 Eigen::Matrix3d expSO3(const Eigen::Vector3d& w) {
   const double theta = w.norm();
   if (theta < 1e-10) return Eigen::Matrix3d::Identity() + skew(w);

@@ -33,6 +33,11 @@ Eigen::Matrix3d skew(const Eigen::Vector3d& v);
 Eigen::Matrix3d expSO3(const Eigen::Vector3d& w);
 Eigen::Vector3d logSO3(const Eigen::Matrix3d& R);
 
+/// The rotation nearest to a nearly orthonormal matrix (through its unit
+/// quaternion): products of rotations drift off SO(3) by rounding, and
+/// composing with a transpose as the inverse amplifies the drift.
+Eigen::Matrix3d nearestRotation(const Eigen::Matrix3d& M);
+
 /// SE(3) exponential/logarithm with xi = (w, v): rotation R = exp(w),
 /// translation t = V(w) v.
 SE3 expSE3(const Vector6d& xi);

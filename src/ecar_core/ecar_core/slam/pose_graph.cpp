@@ -70,7 +70,9 @@ Sim3 similarityOf(const SE3& T_c_w) {
 
 SE3 metricPose(const Sim3& S_c_w) {
   SE3 T = SE3::Identity();
-  T.linear() = S_c_w.R;
+  // Corrections compose similarities (loops, merges, seam refits): a pose
+  // leaves as a rotation, whatever rounding the products gathered.
+  T.linear() = nearestRotation(S_c_w.R);
   T.translation() = S_c_w.t / S_c_w.scale;
   return T;
 }

@@ -125,11 +125,6 @@ class PoseProblem {
   const double delta_;
 };
 
-/// The rotation nearest to a nearly orthonormal matrix (by its quaternion).
-Eigen::Matrix3d rotationOf(const Eigen::Matrix3d& M) {
-  return Eigen::Quaterniond(M).normalized().toRotationMatrix();
-}
-
 Pose updated(const Pose& T, const Vector6d& step) {
   const Eigen::Matrix3d dR = expSO3(step.head<3>());
   return Pose{dR * T.R, dR * T.t + step.tail<3>()};
@@ -207,7 +202,7 @@ PoseOptimizerResult optimizePose(const Intrinsics& K, const std::vector<PoseObse
   // The rotation is projected onto SO(3) on the way in and out: callers compose
   // poses with Isometry3d::inverse() (a transpose), which amplifies any drift
   // from orthonormality frame after frame (1e-6 grew to 1 in 60 uploads).
-  Pose T{rotationOf(T_c_w->linear()), T_c_w->translation()};
+  Pose T{nearestRotation(T_c_w->linear()), T_c_w->translation()};
   // Re-tests every valid observation at the current pose; *cost = 0.5 * the
   // summed chi2 of the inliers.
   auto classify = [&](double* cost) {
@@ -249,7 +244,7 @@ PoseOptimizerResult optimizePose(const Intrinsics& K, const std::vector<PoseObse
   }
 
   SE3 out = SE3::Identity();
-  out.linear() = rotationOf(T.R);
+  out.linear() = nearestRotation(T.R);
   out.translation() = T.t;
   result.num_inliers = static_cast<int>(std::count(flags.begin(), flags.end(), true));
   result.final_cost = cost;

@@ -146,6 +146,19 @@ TEST(GeometryTest, LookAtAlongXWithZUpHasRightEqualMinusY) {
   EXPECT_TRUE(T_w_c.linear().col(2).isApprox(Eigen::Vector3d::UnitX(), kTol));
 }
 
+TEST(GeometryTest, NearestRotationIsOrthonormalAndNear) {
+  const Eigen::Matrix3d R = expSO3(Eigen::Vector3d(0.3, -1.1, 0.7));
+  Eigen::Matrix3d M = R;
+  M(0, 1) += 2e-6;  // rounding of many products: off SO(3)
+  M(2, 0) -= 1e-6;
+  M.col(1) *= 1.0 + 3e-6;
+  const Eigen::Matrix3d P = nearestRotation(M);
+  EXPECT_LT((P.transpose() * P - Eigen::Matrix3d::Identity()).norm(), 1e-12);
+  EXPECT_NEAR(P.determinant(), 1.0, 1e-12);
+  EXPECT_LT((P - R).norm(), 1e-5);
+  EXPECT_LT((nearestRotation(R) - R).norm(), 1e-12);  // a rotation stays itself
+}
+
 TEST(GeometryTest, IsFinite) {
   SE3 T = SE3::Identity();
   EXPECT_TRUE(isFinite(T));

@@ -24,6 +24,18 @@ double rotationErrorDeg(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b) {
   return logSO3(a.transpose() * b).norm() * 180.0 / M_PI;
 }
 
+// A pose made from a product of similarities leaves as a rotation: the
+// tracker composes it with Isometry3d::inverse(), a transpose.
+TEST(PoseGraphTest, MetricPoseIsARotation) {
+  Sim3 S = someSimilarity(1.3);
+  for (int i = 0; i < 2000; ++i) S = S * someSimilarity(1.0) * someSimilarity(1.0).inverse();
+  S.R(0, 1) += 1e-6;  // and rounding beyond that
+  const SE3 T = metricPose(S);
+  EXPECT_LT((T.linear().transpose() * T.linear() - Eigen::Matrix3d::Identity()).norm(), 1e-12);
+  EXPECT_LT((T.linear() - someSimilarity(1.3).R).norm(), 1e-5);
+  EXPECT_LT((T.translation() - S.t / S.scale).norm(), 1e-12);
+}
+
 // 200 pairs, 30% of them wrong, 1 cm noise: the similarity is found, and the
 // wrong pairs are the outliers.
 TEST(Sim3SolverTest, FindsTheSimilarityAmongOutliers) {
