@@ -138,7 +138,11 @@ class AtlasMergeTest(unittest.TestCase):
                             "both devices started in map %s" % start_maps)
         self.assertNotIn(0, start_maps.values())
 
-        # The maps merged: the last graphs of both are in one map.
+        # The maps merged: the last graphs of both are in one map. (Open: beside a busy loop at
+        # nice 0 the mapper, niced by background_nice, falls behind and a device loses tracking at
+        # its first corner, frames 152-160; its new map merges into the other device's, which
+        # later relocalises into the abandoned one, and 4 of 9 such runs ended in two maps here.
+        # Not without that load, which CI does not add: its live tests run one at a time.)
         last = {d: self.poses[d][max(self.poses[d])][0] for d in DEVICES}
         self.assertEqual(last["walker"], last["walker_b"], "maps at the end: %s" % last)
         merged = last["walker"]
@@ -171,15 +175,16 @@ class AtlasMergeTest(unittest.TestCase):
                      for i, c in enumerate(np.array_split(np.array(e), 10)) if len(c)]
             rospy.loginfo("merged map, %s: %d poses, RMSE per tenth (first frame, m) %s",
                           d, len(e), parts)
-        # A wrong merge leaves metres. A right one: 1.5-5.5 cm RMSE over all graphs in 12 runs
-        # here (8 of them beside a busy core). But that RMSE holds walker_b's first graphs in the
+        # A wrong merge leaves metres. A right one: 1.6-5.5 cm RMSE over all graphs in 9 runs
+        # here (5 of them beside a busy core). But that RMSE holds walker_b's first graphs in the
         # merged map, posed before the merge's global adjustment and the ring's loop correction
         # land on the loop-closer thread, and when they land depends on the CPU, not on the data:
-        # beside a busy core, walker_b's first tenth of graphs was 10-41 cm off (one graph 79 cm)
-        # while its other tenths were 1-5 cm; CI on 6cb5b6b measured 10.9 cm RMSE. So the median
-        # (the graphs after the corrections) is bounded, per device: 1.3-5.2 cm over both in the
-        # four runs that logged it, walker's 5.3 cm the worst (beside a busy core).
-        # Issue 12's target is 3 cm, measured by the benchmark, not here.
+        # beside a busy core a tenth of walker_b's graphs was 18 cm off (RMSE; 41 cm, one graph
+        # 79 cm, with the mapper not niced) while its other tenths were 1-5 cm; CI on 6cb5b6b
+        # measured 10.9 cm RMSE. So the median (the graphs after the corrections) is bounded,
+        # per device: 1.3-5.2 cm over both in the four runs that logged it, walker's 5.3 cm the
+        # worst (beside a busy core, mapper not niced). Issue 12's target is 3 cm, measured by
+        # the benchmark, not here.
         for d in DEVICES:
             e = [x for x, (dd, _) in zip(err, who) if dd == d]
             self.assertTrue(e, "%s has no graph in the merged map" % d)
