@@ -11,12 +11,6 @@
 namespace ecar {
 namespace {
 
-/// Points closer to the camera plane than this cannot be projected: the
-/// residual functors report failure and Ceres rejects the step. Points behind
-/// the camera project (mirrored) so that one wild point does not veto a whole
-/// step; the optimisers flag them as outliers afterwards, as ORB-SLAM does.
-constexpr double kMinDepth = 1e-6;
-
 /// sqrt_info * (project(R(aa) p_w + t) - uv); false when the point is on (or
 /// too near) the camera plane.
 template <typename T>
@@ -27,7 +21,8 @@ bool reprojectionResidual(const Intrinsics& K, const Eigen::Vector2d& uv, double
   p_c[0] += pose[3];
   p_c[1] += pose[4];
   p_c[2] += pose[5];
-  if (!(p_c[2] > T(kMinDepth) || p_c[2] < T(-kMinDepth))) return false;  // also rejects NaN
+  if (!(p_c[2] > T(kMinProjectionDepth) || p_c[2] < T(-kMinProjectionDepth)))
+    return false;  // also rejects NaN
   const T inv_z = T(1.0) / p_c[2];
   residual[0] = sqrt_info * (K.fx * p_c[0] * inv_z + (K.cx - uv.x()));
   residual[1] = sqrt_info * (K.fy * p_c[1] * inv_z + (K.cy - uv.y()));
@@ -45,7 +40,7 @@ double chi2(const Intrinsics& K, const Eigen::Vector2d& uv, double inv_sigma2, c
   double p_c[3];
   ceres::AngleAxisRotatePoint(pose, p_w, p_c);
   const double z = p_c[2] + pose[5];
-  if (!(z > kMinDepth)) return std::numeric_limits<double>::infinity();
+  if (!(z > kMinProjectionDepth)) return std::numeric_limits<double>::infinity();
   const double ex = K.fx * (p_c[0] + pose[3]) / z + K.cx - uv.x();
   const double ey = K.fy * (p_c[1] + pose[4]) / z + K.cy - uv.y();
   const double c = (ex * ex + ey * ey) * inv_sigma2;
@@ -111,7 +106,7 @@ bool evaluateReprojection(const Intrinsics& K, const Eigen::Vector2d& uv, double
   rotationAndLeftJacobian(pose, &R, J_pose != nullptr ? &J_l : nullptr);
   const Eigen::Vector3d Rp = R * Eigen::Map<const Eigen::Vector3d>(p_w_ptr);
   const Eigen::Vector3d p_c = Rp + Eigen::Map<const Eigen::Vector3d>(pose + 3);
-  if (!(p_c.z() > kMinDepth || p_c.z() < -kMinDepth)) return false;
+  if (!(p_c.z() > kMinProjectionDepth || p_c.z() < -kMinProjectionDepth)) return false;
   const double inv_z = 1.0 / p_c.z();
   const double u = p_c.x() * inv_z, v = p_c.y() * inv_z;
   residual[0] = sqrt_info * (K.fx * u + (K.cx - uv.x()));

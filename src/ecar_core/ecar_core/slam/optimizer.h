@@ -18,6 +18,14 @@
 
 namespace ecar {
 
+/// Points closer to the camera plane than this cannot be projected: a step
+/// that brings one there is rejected. Points behind the camera project
+/// (mirrored) so that one wild point does not veto a whole step; the
+/// optimisers flag them as outliers afterwards, as ORB-SLAM does. Shared by
+/// bundle adjustment (optimizer.cpp) and pose-only optimisation
+/// (pose_optimizer.cpp).
+inline constexpr double kMinProjectionDepth = 1e-6;
+
 /// One observation of a fixed 3D point in the camera being optimised.
 struct PoseObservation {
   Eigen::Vector3d p_w;

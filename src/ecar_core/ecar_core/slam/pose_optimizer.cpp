@@ -25,12 +25,6 @@ namespace {
 
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
-/// As the bundle adjustment's residuals: points this close to the camera plane
-/// cannot be projected (a step that brings one there is rejected); points behind
-/// the camera project mirrored, so one wild point does not veto a step, and are
-/// flagged as outliers by the chi2 test afterwards.
-constexpr double kMinDepth = 1e-6;
-
 /// Ceres' defaults, which the previous implementation used.
 constexpr double kInitialDamping = 1e-4;     // 1 / initial trust region radius
 constexpr double kFunctionTolerance = 1e-6;  // relative cost decrease
@@ -46,7 +40,7 @@ struct Pose {
 /// front of the camera (or anything is NaN).
 double chi2(const Intrinsics& K, const PoseObservation& o, const Pose& T) {
   const Eigen::Vector3d p = T.R * o.p_w + T.t;
-  if (!(p.z() > kMinDepth)) return std::numeric_limits<double>::infinity();
+  if (!(p.z() > kMinProjectionDepth)) return std::numeric_limits<double>::infinity();
   const double ex = K.fx * p.x() / p.z() + K.cx - o.uv.x();
   const double ey = K.fy * p.y() / p.z() + K.cy - o.uv.y();
   const double c = (ex * ex + ey * ey) * o.inv_sigma2;
@@ -93,7 +87,8 @@ class PoseProblem {
   bool residual(const PoseObservation& o, const Pose& T, Eigen::Vector2d* r,
                 Eigen::Matrix<double, 2, 6>* J) const {
     const Eigen::Vector3d p = T.R * o.p_w + T.t;
-    if (!(p.z() > kMinDepth || p.z() < -kMinDepth)) return false;  // also rejects NaN
+    if (!(p.z() > kMinProjectionDepth || p.z() < -kMinProjectionDepth))
+      return false;  // also rejects NaN
     const double s = std::sqrt(o.inv_sigma2);
     const double inv_z = 1.0 / p.z();
     const double u = p.x() * inv_z, v = p.y() * inv_z;
