@@ -168,9 +168,9 @@ class AtlasMergeTest(unittest.TestCase):
         rospy.loginfo("merged map: %d poses, one-similarity RMSE %.3f m, median %.3f m, max %.3f m",
                       len(src), rmse, float(np.median(err)), float(err.max()))
         # Where the error lies: per device, in tenths of its graphs in the merged map.
+        errors = {d: [x for x, (dd, _) in zip(err, who) if dd == d] for d in DEVICES}
         for d in DEVICES:
-            e = [x for x, (dd, _) in zip(err, who) if dd == d]
-            f = [ff for dd, ff in who if dd == d]
+            e, f = errors[d], [ff for dd, ff in who if dd == d]
             parts = [(f[i * len(f) // 10], round(float(np.sqrt(np.mean(np.square(c)))), 3))
                      for i, c in enumerate(np.array_split(np.array(e), 10)) if len(c)]
             rospy.loginfo("merged map, %s: %d poses, RMSE per tenth (first frame, m) %s",
@@ -186,7 +186,7 @@ class AtlasMergeTest(unittest.TestCase):
         # worst (beside a busy core, mapper not niced). Issue 12's target is 3 cm, measured by
         # the benchmark, not here.
         for d in DEVICES:
-            e = [x for x, (dd, _) in zip(err, who) if dd == d]
+            e = errors[d]
             self.assertTrue(e, "%s has no graph in the merged map" % d)
             self.assertLess(float(np.median(e)), 0.10, "one similarity fits %s's graphs in the "
                             "merged map within %.3f m (median)" % (d, float(np.median(e))))
