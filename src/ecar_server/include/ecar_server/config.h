@@ -87,7 +87,7 @@ struct ServerConfig {
   int background_nice = 5;             ///< niceness added to local mapping and loop closing (0..19)
   /// Atlas: several maps (a device that matches no map starts its own at
   /// once), merged when they overlap; false: every device joins the first map.
-  bool several_maps = true;
+  bool several_maps = false;
   /// Atlas: a device lost for this many uploads starts a new map (0: never).
   int new_map_after_lost = 8;
   /// Atlas: merge maps that overlap (place recognition on every new keyframe,
