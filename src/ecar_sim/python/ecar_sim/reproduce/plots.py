@@ -22,6 +22,7 @@ def against_devices(rows, key, value, series, paper, ylabel, title, path):
         ref = sorted(paper.get(ident, {}).items())
         if ref:
             ax.plot(*zip(*ref), "s--", color=colour, alpha=0.5, label="%s (paper)" % label)
+    ax.set_xticks(sorted({r["devices"] for r in rows}))  # the measured counts, not 2.5, 7.5
     ax.set_xlabel("devices sharing the campus link")
     ax.set_ylabel(ylabel)
     ax.set_yscale("log")
@@ -58,6 +59,7 @@ def parts_vs_devices(rows, path):
             if pts:
                 ax.plot(*zip(*pts), "o-", label=label)
         ax.set_yscale("log")
+        ax.set_xticks(n)
         ax.set_xlabel("devices")
         ax.set_ylabel("median (ms)")
         ax.set_title("E3: %s" % NAMES[mode])
