@@ -178,6 +178,30 @@ class FinalMapTest(unittest.TestCase):
         self.assertEqual(s["server_poses_other_maps"], 2)
         self.assertEqual(s["device_vs_server_frames"], 2)
 
+    def test_a_device_never_in_the_final_map_is_measured_in_its_own(self):
+        # device_0 tracks in map 2 all along (never merged); device_1 and device_2 end in
+        # map 1, the session's final map.
+        r = records()
+        r.server_maps = {"device_0": {f: 2 for f in range(2, 6)}, "device_1": {0: 1},
+                         "device_2": {0: 1}}
+        final = maps.final_map(r, ["device_0", "device_1", "device_2"])
+        self.assertEqual(final, 1)
+        with tempfile.TemporaryDirectory() as tmp:
+            write_dataset(os.path.join(tmp, "d"), 8)
+            s = ev.device_summary("device_0", os.path.join(tmp, "d"), r, tmp, {},
+                                  ate_rmse=lambda gt, est, env, sim3: 0.0, final=final)
+        self.assertEqual((s["final_map"], s["session_final_map"]), (2, 1))
+        self.assertEqual(s["graphs_with_pose"], 4)
+        self.assertEqual(s["server_poses_other_maps"], 0)
+        self.assertEqual(s["device_vs_server_frames"], 4)  # frames 2-5, all in map 2
+        full = summary()
+        full["per_device"] = {"device_0": s}
+        lines = io.StringIO()
+        with contextlib.redirect_stdout(lines):
+            report.print_summary(full, "/o")
+        self.assertIn("device_0: never in the session's final map 1: measured in its own map 2",
+                      lines.getvalue())
+
     def test_the_map_the_device_names_decides(self):
         # The merge's graph (frame 4, map 1) reached the device only after it had tracked
         # frame 5 in map 2's coordinates: the device says so (DeviceFrame.map_id).

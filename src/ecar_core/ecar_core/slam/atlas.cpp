@@ -272,8 +272,13 @@ TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp
       }
     }
     announce();  // a map made for this device gets its callbacks before use
+    // The upload's ORB features, extracted by the first map that tracks it and
+    // reused by the others (every map's trackers share the extractor settings
+    // and the device's camera). Kept per thread: no allocation per upload.
+    thread_local ImageFeatures features;
+    features.extracted = false;
     const auto track_in = [&](SlamSystem& s) {
-      return s.track(device, image, timestamp, frame_index, gravity_c, T_o_c);
+      return s.track(device, image, timestamp, frame_index, gravity_c, T_o_c, &features);
     };
     // Settles the device in `id` and drops its fresh map if nothing was made in it.
     const auto settle = [&](MapId id, const TrackResult& r) {
@@ -297,15 +302,31 @@ TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp
         settle(current_id, result);
         done = true;
         if (atlas_.merge && atlas_.relocalise_every > 0) {
+          MapId last;
           bool probe = false;
           {
             std::lock_guard<std::mutex> lock(mutex_);
-            probe = ++devices_[device].probes % atlas_.relocalise_every == 0;
+            Device& d = devices_[device];
+            probe = ++d.probes % atlas_.relocalise_every == 0;
+            last = d.probed;
           }
-          for (const auto& [id, s] : others) {
-            if (!probe || found) break;
-            if (!initialised(*s)) continue;
-            found = relocalisedOverlap(current_id, *current, result, id, *s, track_in(*s), device);
+          // One other map per probe, in turn: the initialised one with the
+          // next id after the last probed (wrapping round to the lowest).
+          const std::pair<MapId, std::shared_ptr<SlamSystem>>* target = nullptr;
+          const auto after_last = [&](MapId id) {
+            return std::make_pair(id.value <= last.value, id.value);  // smaller: sooner
+          };
+          for (const auto& o : others) {
+            if (!probe || !initialised(*o.second)) continue;
+            if (!target || after_last(o.first) < after_last(target->first)) target = &o;
+          }
+          if (target) {
+            {
+              std::lock_guard<std::mutex> lock(mutex_);
+              devices_[device].probed = target->first;
+            }
+            found = relocalisedOverlap(current_id, *current, result, target->first, *target->second,
+                                       track_in(*target->second), device);
           }
         }
       } else if (initialised(*current)) {

@@ -51,11 +51,13 @@ struct AtlasConfig {
   int new_map_after_lost = 8;
   bool merge = true;
   size_t merge_candidates = 3;  ///< place-recognition candidates per other map
-  /// A device tracked in its map tries to relocalise into each other map
-  /// every this many uploads (0: never): a view from the opposite direction
-  /// shares too few words for place recognition, but relocalisation (keypoint
-  /// matches, gravity RANSAC) finds it. The points matched in both maps give
-  /// the similarity (at least relocalise_min_inliers inliers).
+  /// A device tracked in its map tries to relocalise into another map every
+  /// this many uploads (0: never), one map per probe in turn (a probe costs
+  /// one relocalisation, however many maps there are): a view from the
+  /// opposite direction shares too few words for place recognition, but
+  /// relocalisation (keypoint matches, gravity RANSAC) finds it. The points
+  /// matched in both maps give the similarity (at least
+  /// relocalise_min_inliers inliers).
   int relocalise_every = 2;
   int relocalise_min_inliers = 20;
   /// Where the global bundle adjustment after a merge runs. true: on the
@@ -172,6 +174,7 @@ class Atlas {
     MapId fresh;     ///< a map of its own being initialised
     int lost = 0;    ///< uploads not tracked in `current` in a row
     int probes = 0;  ///< tracked uploads (relocalisation into other maps every relocalise_every)
+    MapId probed;    ///< the map of the last probe (one map per probe, in turn)
   };
   struct Entry {
     MapId id;
@@ -203,11 +206,9 @@ class Atlas {
                                                    DeviceId device) const;
   /// Looks for the keyframe's place in the other maps; merges on a match.
   void tryMerge(MapId map, KeyFrameId keyframe, DeviceId device);
-  /// tryMerge's search, the session lock held exclusively; returns the merged
-  /// map (null when none) and the keyframes it moved.
-  std::shared_ptr<SlamSystem> findMerge(MapId map, KeyFrameId keyframe, DeviceId device,
-                                        std::chrono::steady_clock::time_point start,
-                                        std::vector<KeyFrameId>* moved);
+  /// tryMerge's search (place recognition and verification in the other
+  /// maps), the session lock held shared: tracking goes on meanwhile.
+  std::optional<MergeCandidate> findMerge(MapId map, KeyFrameId keyframe, DeviceId device) const;
   /// Merges the smaller of the candidate's maps into the larger. The session
   /// lock held exclusively. Returns the merged map (null when nothing merged)
   /// and the keyframes moved into it, for adjustMerged().

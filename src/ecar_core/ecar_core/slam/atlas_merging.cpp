@@ -61,18 +61,26 @@ std::optional<Atlas::MergeCandidate> Atlas::relocalisedOverlap(MapId a_id, const
 
 void Atlas::tryMerge(MapId map_id, KeyFrameId keyframe, DeviceId device) {
   const auto start = std::chrono::steady_clock::now();
+  std::optional<MergeCandidate> found;
+  {
+    // The search alongside the other devices' tracking (it was 11% of the
+    // server's CPU with twenty devices, all of it blocking them); only the
+    // merge itself stops them. doMerge() finds out if a map went meanwhile.
+    std::shared_lock<std::shared_mutex> session(session_mutex_);
+    found = findMerge(map_id, keyframe, device);
+  }
+  if (!found) return;
   std::shared_ptr<SlamSystem> merged;
   std::vector<KeyFrameId> moved;
   {
     std::unique_lock<std::shared_mutex> session(session_mutex_);  // no track() runs
-    merged = findMerge(map_id, keyframe, device, start, &moved);
+    merged = doMerge(*found, start, &moved);
   }
   adjustMerged(merged, moved);
 }
 
-std::shared_ptr<SlamSystem> Atlas::findMerge(MapId map_id, KeyFrameId keyframe, DeviceId device,
-                                             std::chrono::steady_clock::time_point start,
-                                             std::vector<KeyFrameId>* moved) {
+std::optional<Atlas::MergeCandidate> Atlas::findMerge(MapId map_id, KeyFrameId keyframe,
+                                                      DeviceId device) const {
   std::shared_ptr<SlamSystem> a;
   std::vector<std::pair<MapId, std::shared_ptr<SlamSystem>>> others;
   {
@@ -82,13 +90,13 @@ std::shared_ptr<SlamSystem> Atlas::findMerge(MapId map_id, KeyFrameId keyframe, 
       if (e.id != map_id) others.emplace_back(e.id, e.slam);
     }
   }
-  if (!a || others.empty()) return nullptr;
+  if (!a || others.empty()) return std::nullopt;
   cv::Mat descriptors;
   bool metric_a = false;
   {
     auto lock = a->map().readLock();
     const KeyFrame* k = a->map().keyframe(keyframe);
-    if (!k || k->features.descriptors.empty()) return nullptr;
+    if (!k || k->features.descriptors.empty()) return std::nullopt;
     descriptors = k->features.descriptors;
     metric_a = a->map().metric();
   }
@@ -105,12 +113,11 @@ std::shared_ptr<SlamSystem> Atlas::findMerge(MapId map_id, KeyFrameId keyframe, 
           verifyPlace(a->map(), keyframe, b->map(), c.keyframe, {}, config_.loops,
                       metric_a && metric_b, keyframe.value);
       if (!m) continue;
-      MergeCandidate cand{map_id,   b_id,       m->S,   m->duplicates,
-                          keyframe, c.keyframe, device, m->inliers};
-      return doMerge(cand, start, moved);
+      return MergeCandidate{map_id,   b_id,       m->S,   m->duplicates,
+                            keyframe, c.keyframe, device, m->inliers};
     }
   }
-  return nullptr;
+  return std::nullopt;
 }
 
 void Atlas::adjustMerged(const std::shared_ptr<SlamSystem>& merged,

@@ -295,21 +295,4 @@ void OrbExtractor::computeAt(const cv::Mat& image, const std::vector<cv::KeyPoin
   }
 }
 
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__POPCNT__) && \
-    !defined(__SANITIZE_THREAD__)
-// The matcher calls this in its inner loops: use the popcnt instruction where
-// the CPU has it (chosen once at load time).
-__attribute__((target_clones("popcnt", "default")))
-#endif
-int descriptorDistance(const uint8_t* a, const uint8_t* b) {
-  int distance = 0;
-  for (int i = 0; i < kDescriptorBytes; i += 8) {
-    uint64_t wa, wb;
-    std::memcpy(&wa, a + i, sizeof(wa));
-    std::memcpy(&wb, b + i, sizeof(wb));
-    distance += __builtin_popcountll(wa ^ wb);
-  }
-  return distance;
-}
-
 }  // namespace ecar

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <cstdint>
+#include <cstring>
 #include <memory>
 #include <vector>
 
@@ -21,8 +22,20 @@ struct OrbConfig {
 /// Bytes of one ORB descriptor (a row of the descriptor matrices, CV_8U).
 constexpr int kDescriptorBytes = 32;
 
-/// Hamming distance of two 32-byte ORB descriptors (0..256).
-int descriptorDistance(const uint8_t* a, const uint8_t* b);
+/// Hamming distance of two 32-byte ORB descriptors (0..256). Inline, since
+/// the matchers call it in their inner loops: four popcnt instructions where
+/// the build host has them (ecar_core's users are built with -mpopcnt then,
+/// see its CMakeLists.txt), a call per pair would cost as much again.
+inline int descriptorDistance(const uint8_t* a, const uint8_t* b) {
+  int distance = 0;
+  for (int i = 0; i < kDescriptorBytes; i += 8) {
+    uint64_t wa, wb;
+    std::memcpy(&wa, a + i, sizeof(wa));
+    std::memcpy(&wb, b + i, sizeof(wb));
+    distance += __builtin_popcountll(wa ^ wb);
+  }
+  return distance;
+}
 inline int descriptorDistance(const cv::Mat& a, int ia, const cv::Mat& b, int ib) {
   return descriptorDistance(a.ptr<uint8_t>(ia), b.ptr<uint8_t>(ib));
 }

@@ -87,11 +87,11 @@ void SlamSystem::forgetDevice(DeviceId device) {
 
 TrackResult SlamSystem::track(DeviceId device, const cv::Mat& image, double timestamp,
                               uint32_t frame_index, const std::optional<Eigen::Vector3d>& gravity_c,
-                              const std::optional<SE3>& T_o_c) {
+                              const std::optional<SE3>& T_o_c, ImageFeatures* features) {
   std::shared_lock<std::shared_mutex> session(session_mutex_);
   // A shared reference: setCamera() may replace the device's tracker meanwhile.
   const std::shared_ptr<Tracker> tracker = sharedTracker(device);
-  TrackResult result = tracker->track(image, timestamp, frame_index, gravity_c, T_o_c);
+  TrackResult result = tracker->track(image, timestamp, frame_index, gravity_c, T_o_c, features);
   if (result.odometry_loop) loops_.closeByOdometry(*result.odometry_loop);
   auto lock = map_.readLock();
   result.map_epoch = map_.epoch();  // installMap() cannot run while `session` is held

@@ -66,11 +66,13 @@ class SlamSystem {
   /// and its camera (a device connecting under many names must not grow the
   /// server's state for good).
   void forgetDevice(DeviceId device);
-  /// Tracks one image of a device (see Tracker::track). Runs alongside other
-  /// devices' track() calls; installMap() waits for it and blocks it.
+  /// Tracks one image of a device (see Tracker::track, also for `features`).
+  /// Runs alongside other devices' track() calls; installMap() waits for it
+  /// and blocks it.
   TrackResult track(DeviceId device, const cv::Mat& image, double timestamp, uint32_t frame_index,
                     const std::optional<Eigen::Vector3d>& gravity_c = std::nullopt,
-                    const std::optional<SE3>& T_o_c = std::nullopt);
+                    const std::optional<SE3>& T_o_c = std::nullopt,
+                    ImageFeatures* features = nullptr);
 
   // ---- saving and loading the map (io/map_file.h, io/slam_map_codec.h). Thread-safe with track().
   /// Writes the map to a file with one section, "slam" (atomically: a

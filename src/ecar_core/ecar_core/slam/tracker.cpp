@@ -60,7 +60,7 @@ void Tracker::reset() {
 
 TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t frame_index,
                            const std::optional<Eigen::Vector3d>& gravity_c,
-                           const std::optional<SE3>& T_o_c) {
+                           const std::optional<SE3>& T_o_c, ImageFeatures* features) {
   TrackResult result;
   const auto t0 = std::chrono::steady_clock::now();
   if (image.empty() || image.cols != camera_->width() || image.rows != camera_->height()) {
@@ -71,18 +71,28 @@ TrackResult Tracker::track(const cv::Mat& image, double timestamp, uint32_t fram
     result.state = state_;
     return result;
   }
-  cv::Mat gray;
-  if (image.channels() == 3) {
-    cv::cvtColor(image, gray, cv::COLOR_BGR2GRAY);
-  } else {
-    gray = image;
-  }
   current_.clear();  // the frame before last's memory, reused
   current_.frame_index = frame_index;
   current_.timestamp = timestamp;
   current_.gravity_c = gravity_c;
   current_.T_o_c = T_o_c;
-  extractor_.detectAndCompute(gray, &current_.keypoints, &current_.descriptors);
+  if (features && features->extracted) {
+    current_.keypoints.assign(features->keypoints.begin(), features->keypoints.end());
+    current_.descriptors = features->descriptors;
+  } else {
+    cv::Mat gray;
+    if (image.channels() == 3) {
+      cv::cvtColor(image, gray, cv::COLOR_BGR2GRAY);
+    } else {
+      gray = image;
+    }
+    extractor_.detectAndCompute(gray, &current_.keypoints, &current_.descriptors);
+    if (features) {
+      features->keypoints.assign(current_.keypoints.begin(), current_.keypoints.end());
+      features->descriptors = current_.descriptors;
+      features->extracted = true;
+    }
+  }
   current_.finalize(*camera_);
   result.orb_ms = msSince(t0);
   const auto t1 = std::chrono::steady_clock::now();

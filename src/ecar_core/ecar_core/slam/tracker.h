@@ -66,16 +66,28 @@ struct TrackResult {
 
 class LocalMapper;
 
+/// One image's ORB keypoints and descriptors, extracted once for several
+/// trackers of the same device and extractor settings (the atlas tracks an
+/// upload in several maps). The descriptors are shared, never written.
+struct ImageFeatures {
+  bool extracted = false;
+  std::vector<cv::KeyPoint> keypoints;
+  cv::Mat descriptors;
+};
+
 class Tracker {
  public:
   /// `keypoints` may be null (no relocalisation by keypoint matches).
   Tracker(DeviceId device, Map* map, PlaceIndex* index, LocalMapper* mapper, CameraPtr camera,
           const SlamConfig& config, KeypointIndex* keypoints = nullptr);
   /// Aligns one grey image. Bad images (empty, wrong size, blank) give a
-  /// NOT_INITIALISED/LOST result with a message; nothing throws.
+  /// NOT_INITIALISED/LOST result with a message; nothing throws. `features`
+  /// (optional): used instead of extracting when already extracted, else
+  /// filled with this image's.
   TrackResult track(const cv::Mat& image, double timestamp, uint32_t frame_index,
                     const std::optional<Eigen::Vector3d>& gravity_c = std::nullopt,
-                    const std::optional<SE3>& T_o_c = std::nullopt);
+                    const std::optional<SE3>& T_o_c = std::nullopt,
+                    ImageFeatures* features = nullptr);
   TrackingState state() const { return state_; }
   int relocalisations() const { return relocalisations_; }
   /// Forgets the tracking state (last image, motion model, local keyframes,

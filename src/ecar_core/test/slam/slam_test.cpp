@@ -88,6 +88,36 @@ TEST(SlamTest, HalfCircleIsTrackedAccurately) {
   EXPECT_GE(slam.map().numKeyFrames(), 3u);
 }
 
+// The atlas tracks one upload in several maps with the features extracted
+// once: a map given them tracks exactly as one that extracts its own.
+TEST(SlamTest, FeaturesExtractedOnceTrackAsExtractedAgain) {
+  const Scene scene = loadScene(kScenes + "/room.yaml");
+  const Renderer renderer(scene);
+  const auto uploads = renderUploads(scene, renderer, "half_circle", 4, 30);
+  SlamConfig config;
+  config.synchronous_mapping = true;
+  SlamSystem extracting(renderer.camera(), config), given(renderer.camera(), config);
+  int tracked = 0;
+  for (size_t i = 0; i < uploads.size(); ++i) {
+    const Upload& u = uploads[i];
+    ImageFeatures features;
+    const auto a = extracting.track(DeviceId(1), u.image, u.motion.timestamp, u.frame,
+                                    u.motion.gravity_c, std::nullopt, &features);
+    ASSERT_TRUE(features.extracted) << "upload " << i;
+    ASSERT_EQ(features.keypoints.size(), static_cast<size_t>(features.descriptors.rows));
+    // (Given features, the image is only checked for its size.)
+    const auto b = given.track(DeviceId(1), u.image, u.motion.timestamp, u.frame,
+                               u.motion.gravity_c, std::nullopt, &features);
+    ASSERT_EQ(a.state, b.state) << "upload " << i;
+    ASSERT_EQ(a.tracked.size(), b.tracked.size()) << "upload " << i;
+    if (a.state == TrackingState::kOk) {
+      ++tracked;
+      EXPECT_LT((a.T_w_c.translation() - b.T_w_c.translation()).norm(), 1e-9) << "upload " << i;
+    }
+  }
+  EXPECT_GE(tracked, 15);
+}
+
 // A hand-held shake (5 cm, 4 degrees, 1 Hz) has little parallax between any
 // two views: initialisation must find the pair of recent views with the
 // largest baseline, not wait for the first view to be renewed.

@@ -91,8 +91,8 @@ struct ServerConfig {
   /// Atlas: a device lost for this many uploads starts a new map (0: never).
   int new_map_after_lost = 8;
   /// Atlas: merge maps that overlap (place recognition on every new keyframe,
-  /// and a relocalisation probe into the other maps every merge_probe_every
-  /// tracked uploads of a device; 0: no probes).
+  /// and a relocalisation probe into another map, one per probe in turn,
+  /// every merge_probe_every tracked uploads of a device; 0: no probes).
   bool merge_maps = true;
   int merge_probe_every = 2;
   /// Atlas: the global bundle adjustment after a merge runs on a background

@@ -102,11 +102,17 @@ def device_summary(device, dataset, records, traj_dir, env, ate_rmse=ate, final=
     """summary.json's per_device entry of one device; writes its trajectories (device and
     server estimates, ground truth copied) into traj_dir. ate_rmse(gt, est, env, sim3) gives
     the ATE (ecar_eval_traj by default). The pose metrics use the device's frames in the
-    session's final map `final` (session.maps; all frames for records without map ids).
+    session's final map `final` (session.maps; all frames for records without map ids); a
+    device never in the final map (its own map, not merged by the end) is measured in its last
+    map instead (the ATE fits one transform per device; `final_map` is the map measured in,
+    `session_final_map` the session's).
     uploads_only: a light device, which takes only the frames it uploads (frames_skipped is
     then None)."""
     frames = records.device_frames.get(device, {})
     in_final = maps.frames_of(records, device, final)
+    own = maps.last_map(records, device)
+    if not in_final.in_final and own is not None:
+        in_final = maps.frames_of(records, device, own)
     all_server = records.server_poses[device]
     server = {f: p for f, p in all_server.items() if in_final.server(f)}
     times = read_frame_times(dataset)
@@ -155,6 +161,7 @@ def device_summary(device, dataset, records, traj_dir, env, ate_rmse=ate, final=
         "upload_bytes": sum(r["bytes_up"] for r in rows),
         "download_bytes": sum(r["bytes_down"] for r in rows),
         **in_final.summary(all_server),
+        "session_final_map": final,
     }
 
 

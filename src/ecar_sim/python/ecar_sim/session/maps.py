@@ -18,6 +18,12 @@ def final_map(records, devices):
     return Counter(last).most_common(1)[0][0] if last else None
 
 
+def last_map(records, device):
+    """The map of the device's last graph with a pose (None without any)."""
+    server_maps = getattr(records, "server_maps", {}).get(device, {})
+    return server_maps[max(server_maps)] if server_maps else None
+
+
 class FinalMapFrames:
     """Which frames of one device are in `final`:
     server(f)  its local graph of frame f is in the final map, on or after the switch;

@@ -53,6 +53,10 @@ def print_summary(s, out):
         if r.get("frames_skipped"):
             log("%s: %d of %d frames skipped (the device was busy when they came, as behind a "
                 "camera's driver)" % (d, r["frames_skipped"], r["frames"] + r["frames_skipped"]))
+        if r.get("session_final_map") is not None and r.get("final_map") is not None and \
+                r["final_map"] != r["session_final_map"]:
+            log("%s: never in the session's final map %s: measured in its own map %s" %
+                (d, r["session_final_map"], r["final_map"]))
         if len(r.get("maps", [])) > 1:
             log("%s: server maps %s; measured in the final map %s from frame %s (%d server poses "
                 "in other maps left out)" % (d, r["maps"], r["final_map"],
