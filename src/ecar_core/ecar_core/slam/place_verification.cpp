@@ -32,6 +32,7 @@ std::optional<PlaceMatch> verifyPlace(const Map& query_map, KeyFrameId query, co
                                       const std::unordered_set<KeyFrameId>& excluded,
                                       const LoopClosingConfig& c, bool fix_scale, uint32_t seed) {
   std::vector<Target> targets;
+  size_t candidate_targets = 0;  // targets[0, candidate_targets): the candidate's own points
   std::unordered_set<MapPointId> target_ids;
   Eigen::Vector3d centre;
   {
@@ -51,9 +52,11 @@ std::optional<PlaceMatch> verifyPlace(const Map& query_map, KeyFrameId query, co
         std::memcpy(t.descriptor.data(), p->descriptor.ptr<uint8_t>(0), 32);
         targets.push_back(t);
       }
+      if (id == candidate) candidate_targets = targets.size();
     }
   }
   std::vector<Source> sources;
+  size_t query_sources = 0;  // sources[0, query_sources): the query keyframe's own points
   {
     auto lock = query_map.readLock();
     const KeyFrame* k = query_map.keyframe(query);
@@ -73,16 +76,14 @@ std::optional<PlaceMatch> verifyPlace(const Map& query_map, KeyFrameId query, co
                     32);
         sources.push_back(s);
       }
+      if (id == query) query_sources = sources.size();
     }
   }
-  std::vector<PointPair> pairs;
-  std::vector<size_t> source_of;
-  std::vector<size_t> target_of;
-  for (size_t s = 0; s < sources.size(); ++s) {
+  // The nearest of targets[0, end) to a source passing the ratio test, or -1.
+  const auto nearest = [&](const Source& source, size_t end) {
     int best = 256, second = 256, best_index = -1;
-    for (size_t t = 0; t < targets.size(); ++t) {
-      const int dist =
-          descriptorDistance(sources[s].descriptor.data(), targets[t].descriptor.data());
+    for (size_t t = 0; t < end; ++t) {
+      const int dist = descriptorDistance(source.descriptor.data(), targets[t].descriptor.data());
       if (dist < best) {
         second = best;
         best = dist;
@@ -91,7 +92,23 @@ std::optional<PlaceMatch> verifyPlace(const Map& query_map, KeyFrameId query, co
         second = dist;
       }
     }
-    if (best_index < 0 || best > kDescriptorThresholdLow || best >= c.ratio * second) continue;
+    return best_index >= 0 && best <= kDescriptorThresholdLow && best < c.ratio * second
+               ? best_index
+               : -1;
+  };
+  if (c.min_candidate_matches > 0) {
+    int matched = 0;
+    for (size_t s = 0; s < query_sources && matched < c.min_candidate_matches; ++s) {
+      matched += nearest(sources[s], candidate_targets) >= 0;
+    }
+    if (matched < c.min_candidate_matches) return std::nullopt;
+  }
+  std::vector<PointPair> pairs;
+  std::vector<size_t> source_of;
+  std::vector<size_t> target_of;
+  for (size_t s = 0; s < sources.size(); ++s) {
+    const int best_index = nearest(sources[s], targets.size());
+    if (best_index < 0) continue;
     const Target& t = targets[best_index];
     pairs.push_back({sources[s].p_w, t.p_w, c.tolerance_fraction * (t.p_w - centre).norm() + 0.01});
     source_of.push_back(s);

@@ -30,7 +30,9 @@ struct PlaceMatch {
 /// keyframes in `query_map`) to the match side (`candidate` and its
 /// candidate_neighbours in `match_map`, without the keyframes of `excluded`)
 /// and verifies the similarity (LoopClosingConfig: ratio, tolerance_fraction,
-/// min_inliers, min_inlier_keyframes; fix_scale for SE(3)). Holds each map's
+/// min_inliers, min_inlier_keyframes; fix_scale for SE(3)). A candidate whose
+/// own points match fewer than min_candidate_matches of `query`'s own is
+/// rejected before the neighbourhoods are matched. Holds each map's
 /// read lock while it reads it (the maps may be one). `seed` makes RANSAC
 /// reproducible.
 std::optional<PlaceMatch> verifyPlace(const Map& query_map, KeyFrameId query, const Map& match_map,

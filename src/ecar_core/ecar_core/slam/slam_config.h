@@ -25,6 +25,14 @@ struct LoopClosingConfig {
   size_t candidates = 3;          ///< place-recognition candidates checked
   int candidate_neighbours = 10;  ///< the candidate's neighbours whose points are matched
   double ratio = 0.8;             ///< descriptor ratio test
+  /// Quick rejection before the neighbourhoods are matched: the new
+  /// keyframe's own points must match at least this many of the candidate
+  /// keyframe's own points (same ratio test). Nearly every candidate fails
+  /// verification; this costs about a fifth of matching both sides. On the
+  /// six-device corridor and the small ring (1440 verifications) the accepted
+  /// candidates had 79 and 131 such matches, and 10 rejected 1239 candidates
+  /// of which none would have been verified (0: match both sides at once).
+  int min_candidate_matches = 10;
   /// Similarity inliers needed, from at least min_inlier_keyframes keyframes
   /// of the current side (checked with the neighbours).
   int min_inliers = 40;
