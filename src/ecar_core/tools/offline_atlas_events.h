@@ -300,14 +300,19 @@ inline void reportAtlasEvents(const ecar::Atlas& atlas, const ecar::SlamSystem* 
     const ecar::LoopClosure& l = loops[k];
     const size_t d = k < loop_found_by.size() ? loop_found_by[k].first : l.device.value - 1;
     const int upload = k < loop_found_by.size() ? loop_found_by[k].second : -1;
+    char odometry[160] = "";
+    if (l.by_odometry) {
+      std::snprintf(odometry, sizeof(odometry),
+                    " (odometry across a tracking gap: off by %.3f m, %d covisibility links apart)",
+                    l.odometry_disagreement_m, l.links);
+    }
     std::printf(
         "loop closed%s: %s upload %d (keyframe %u) with keyframe %u, %d inliers, similarity scale "
         "%.4f, the keyframe moved %.3f m; detect %.1f ms, correct %.1f ms (%zu keyframes, %zu "
         "points moved, %zu fused), global BA %.1f ms\n",
-        l.by_odometry ? " (odometry across a tracking gap)" : "",
-        d < runs.size() ? runs[d].name.c_str() : "?", upload, l.query.value, l.match.value,
-        l.inliers, l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.keyframes_moved, l.points_moved,
-        l.points_fused, l.global_ba_ms);
+        odometry, d < runs.size() ? runs[d].name.c_str() : "?", upload, l.query.value,
+        l.match.value, l.inliers, l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.keyframes_moved,
+        l.points_moved, l.points_fused, l.global_ba_ms);
     (*summary)["loop_closures"].push_back({{"upload", upload},
                                            {"device", d < runs.size() ? runs[d].name : "?"},
                                            {"keyframe", l.query.value},
@@ -315,6 +320,8 @@ inline void reportAtlasEvents(const ecar::Atlas& atlas, const ecar::SlamSystem* 
                                            {"inliers", l.inliers},
                                            {"scale", l.scale},
                                            {"moved_m", l.drift_m},
+                                           {"by_odometry", l.by_odometry},
+                                           {"links", l.links},
                                            {"ms", l.detect_ms + l.correct_ms},
                                            {"detect_ms", l.detect_ms},
                                            {"correct_ms", l.correct_ms},

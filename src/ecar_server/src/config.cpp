@@ -82,6 +82,12 @@ void ServerConfig::validate() const {
   if (!(loop_odometry_max_gap > 0.0 && loop_odometry_max_gap <= 60.0)) {
     fail("loop_odometry_max_gap", "must be in (0, 60] s");
   }
+  if (loop_odometry_min_hops < 1 || loop_odometry_min_hops > 20) {
+    fail("loop_odometry_min_hops", "must be in [1, 20] covisibility links");
+  }
+  if (!(loop_odometry_max_drift_per_link > 0.0 && loop_odometry_max_drift_per_link <= 1.0)) {
+    fail("loop_odometry_max_drift_per_link", "must be in (0, 1] m");
+  }
   if (!(camera_tolerance >= 0.0 && camera_tolerance < 1.0)) {
     fail("camera_tolerance", "must be in [0, 1)");
   }
@@ -153,6 +159,8 @@ ecar::SlamConfig ServerConfig::slamConfig() const {
   c.loops.global_ba = loop_global_ba;
   c.loops.by_odometry = loop_by_odometry;
   c.loops.odometry_max_gap = loop_odometry_max_gap;
+  c.loops.odometry_min_hops = loop_odometry_min_hops;
+  c.loops.odometry_max_drift_per_link = loop_odometry_max_drift_per_link;
   c.background_nice = background_nice;
   c.synchronous_mapping = false;
   return c;

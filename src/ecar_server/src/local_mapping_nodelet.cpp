@@ -5,6 +5,7 @@
 // keyframe, the global graph drops its plane and cell links and moves the
 // objects hanging on it (vo_attach keyframe) to its heir, the neighbour that
 // shared the most points with it.
+#include <cstdio>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -78,11 +79,18 @@ class LocalMappingNodelet : public nodelet::Nodelet, public ecar::GraphListener 
     if (!loops.empty() && loops.size() != reported_loops_) {
       reported_loops_ = loops.size();
       const ecar::LoopClosure& l = loops.back();
+      char odometry[160] = "";
+      if (l.by_odometry) {
+        std::snprintf(odometry, sizeof(odometry),
+                      " (by odometry: off by %.3f m after a tracking gap, %d covisibility links "
+                      "apart)",
+                      l.odometry_disagreement_m, l.links);
+      }
       NODELET_INFO(
-          "loop closed: keyframe %u (%s) with keyframe %u, %d inliers, scale %.4f, it moved "
+          "loop closed%s: keyframe %u (%s) with keyframe %u, %d inliers, scale %.4f, it moved "
           "%.3f m; detection %.1f ms, correction %.1f ms; %zu points fused",
-          l.query.value, graph_->devices().name(l.device).c_str(), l.match.value, l.inliers,
-          l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.points_fused);
+          odometry, l.query.value, graph_->devices().name(l.device).c_str(), l.match.value,
+          l.inliers, l.scale, l.drift_m, l.detect_ms, l.correct_ms, l.points_fused);
     }
     NODELET_INFO(
         "map %u corrected: %zu keyframes, %zu points, %zu planes, %zu objects moved, %zu "

@@ -62,6 +62,8 @@ ServerConfig parseServerConfig(const XmlRpc::XmlRpcValue& params, const std::str
   r.read("loop_global_ba", &c.loop_global_ba);
   r.read("loop_by_odometry", &c.loop_by_odometry);
   r.read("loop_odometry_max_gap", &c.loop_odometry_max_gap);
+  r.read("loop_odometry_min_hops", &c.loop_odometry_min_hops);
+  r.read("loop_odometry_max_drift_per_link", &c.loop_odometry_max_drift_per_link);
   r.read("background_nice", &c.background_nice);
   r.read("camera_tolerance", &c.camera_tolerance);
   r.read("several_maps", &c.several_maps);

@@ -36,6 +36,8 @@ TEST(ServerConfigTest, ShippedYamlHasOnlyKnownKeysWithTheDefaults) {
   EXPECT_EQ(c.background_nice, d.background_nice);
   EXPECT_EQ(c.loop_by_odometry, d.loop_by_odometry);
   EXPECT_DOUBLE_EQ(c.loop_odometry_max_gap, d.loop_odometry_max_gap);
+  EXPECT_EQ(c.loop_odometry_min_hops, d.loop_odometry_min_hops);
+  EXPECT_DOUBLE_EQ(c.loop_odometry_max_drift_per_link, d.loop_odometry_max_drift_per_link);
   EXPECT_DOUBLE_EQ(c.uplink_capacity, d.uplink_capacity);
   EXPECT_DOUBLE_EQ(c.uplink_utilisation, d.uplink_utilisation);
 }
@@ -120,6 +122,12 @@ TEST(ServerConfigTest, InvalidValuesNameTheirKey) {
   expectKey(c, "loop_odometry_max_gap");
   c.loop_odometry_max_gap = std::nan("");
   expectKey(c, "loop_odometry_max_gap");
+  c = ServerConfig();
+  c.loop_odometry_min_hops = 0;
+  expectKey(c, "loop_odometry_min_hops");
+  c = ServerConfig();
+  c.loop_odometry_max_drift_per_link = std::nan("");
+  expectKey(c, "loop_odometry_max_drift_per_link");
   c = ServerConfig();
   c.background_nice = 20;
   expectKey(c, "background_nice");

@@ -214,6 +214,13 @@ std::shared_ptr<SlamSystem> Atlas::slamOf(MapId id) const {
   return nullptr;
 }
 
+Atlas::Entry* Atlas::entryOf(MapId id) {
+  for (Entry& e : maps_) {
+    if (e.id == id) return &e;
+  }
+  return nullptr;
+}
+
 MapId Atlas::newMap(MapId id) {
   if (!id.valid()) id = MapId(next_map_);
   next_map_ = std::max(next_map_, id.value + 1);
@@ -229,8 +236,8 @@ MapId Atlas::newMap(MapId id) {
   for (const auto& [device, camera] : cameras_) {
     slam->setCamera(device, camera, camera_tolerance_);
   }
-  maps_.push_back({id, slam});
-  created_.push_back({id, std::move(slam)});
+  maps_.push_back({id, slam, 0, MapId()});
+  created_.push_back({id, std::move(slam), 0, MapId()});
   return id;
 }
 
@@ -306,9 +313,10 @@ TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp
           bool probe = false;
           {
             std::lock_guard<std::mutex> lock(mutex_);
-            Device& d = devices_[device];
-            probe = ++d.probes % atlas_.relocalise_every == 0;
-            last = d.probed;
+            if (Entry* e = entryOf(current_id)) {
+              probe = ++e->tracked % atlas_.relocalise_every == 0;
+              last = e->probed;
+            }
           }
           // One other map per probe, in turn: the initialised one with the
           // next id after the last probed (wrapping round to the lowest).
@@ -317,13 +325,15 @@ TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp
             return std::make_pair(id.value <= last.value, id.value);  // smaller: sooner
           };
           for (const auto& o : others) {
-            if (!probe || !initialised(*o.second)) continue;
-            if (!target || after_last(o.first) < after_last(target->first)) target = &o;
+            if (probe && initialised(*o.second) &&
+                (!target || after_last(o.first) < after_last(target->first))) {
+              target = &o;
+            }
           }
           if (target) {
             {
               std::lock_guard<std::mutex> lock(mutex_);
-              devices_[device].probed = target->first;
+              if (Entry* e = entryOf(current_id)) e->probed = target->first;
             }
             found = relocalisedOverlap(current_id, *current, result, target->first, *target->second,
                                        track_in(*target->second), device);

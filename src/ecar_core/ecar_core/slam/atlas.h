@@ -51,9 +51,12 @@ struct AtlasConfig {
   int new_map_after_lost = 8;
   bool merge = true;
   size_t merge_candidates = 3;  ///< place-recognition candidates per other map
-  /// A device tracked in its map tries to relocalise into another map every
-  /// this many uploads (0: never), one map per probe in turn (a probe costs
-  /// one relocalisation, however many maps there are): a view from the
+  /// One of every this many uploads tracked in a map (of all its devices
+  /// together; 0: never) tries to relocalise into another map, one map per
+  /// probe in turn: a probe costs one relocalisation, however many maps there
+  /// are, and a map's probes cost as much with twenty devices as with one
+  /// (with one device each, as in the two-device joins, every second upload
+  /// of each device probes). A view from the
   /// opposite direction shares too few words for place recognition, but
   /// relocalisation (keypoint matches, gravity RANSAC) finds it. The points
   /// matched in both maps give the similarity (at least
@@ -170,17 +173,20 @@ class Atlas {
  private:
   static bool initialised(const SlamSystem& slam);  ///< its map has keyframes
   struct Device {
-    MapId current;   ///< the map it tracks in
-    MapId fresh;     ///< a map of its own being initialised
-    int lost = 0;    ///< uploads not tracked in `current` in a row
-    int probes = 0;  ///< tracked uploads (relocalisation into other maps every relocalise_every)
-    MapId probed;    ///< the map of the last probe (one map per probe, in turn)
+    MapId current;  ///< the map it tracks in
+    MapId fresh;    ///< a map of its own being initialised
+    int lost = 0;   ///< uploads not tracked in `current` in a row
   };
   struct Entry {
     MapId id;
     std::shared_ptr<SlamSystem> slam;
+    /// Uploads tracked in this map, of all its devices (one of every
+    /// relocalise_every probes another map), and the map probed last.
+    int tracked = 0;
+    MapId probed;
   };
   std::shared_ptr<SlamSystem> slamOf(MapId id) const;  // mutex_ held
+  Entry* entryOf(MapId id);                            // mutex_ held; null if none
   /// A new empty map (`id` invalid: the next free id); queued for the
   /// `created` callback (announce()). mutex_ held.
   MapId newMap(MapId id = MapId());

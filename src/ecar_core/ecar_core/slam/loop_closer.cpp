@@ -44,6 +44,7 @@ void LoopCloser::closeByOdometry(const OdometryLoop& loop) {
 
 void LoopCloser::processOdometryLoop() {
   OdometryLoop loop;
+  int links = 0;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (odometry_loops_.empty()) return;
@@ -53,9 +54,12 @@ void LoopCloser::processOdometryLoop() {
   {
     auto lock = map_->readLock();
     if (!map_->keyframe(loop.before) || !map_->keyframe(loop.after)) return;
-    // The two places already share points: the relocalisation is no loop.
-    for (const KeyFrameId n : map_->bestCovisible(loop.before, config_.loops.covisible_excluded)) {
-      if (n == loop.after) return;
+    // The two places are held together by shared points (directly or through
+    // a few keyframes): the relocalisation is no loop.
+    links = map_->covisibilityHops(loop.before, loop.after, LoopClosure::kCountedLinks);
+    if (links < config_.loops.odometry_min_hops ||
+        loop.drift_m > config_.loops.odometry_max_drift_per_link * links) {
+      return;
     }
   }
   Candidate candidate;
@@ -69,6 +73,8 @@ void LoopCloser::processOdometryLoop() {
   report.match = loop.after;
   report.inliers = loop.inliers;
   report.by_odometry = true;
+  report.odometry_disagreement_m = loop.drift_m;
+  report.links = links;
   close(candidate, &report);
 }
 

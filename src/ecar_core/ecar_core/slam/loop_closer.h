@@ -68,6 +68,12 @@ struct LoopClosure {
   /// (closeByOdometry), not by place recognition; `inliers` are then the
   /// relocalised image's tracked points.
   bool by_odometry = false;
+  /// Odometry loops: how far the odometry put the device from where it
+  /// relocalised (OdometryLoop::drift_m), and the covisibility links between
+  /// the two keyframes (Map::covisibilityHops, counted up to kCountedLinks).
+  double odometry_disagreement_m = 0.0;
+  int links = 0;
+  static constexpr int kCountedLinks = 50;
 };
 
 class LoopCloser {

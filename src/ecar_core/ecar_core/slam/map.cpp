@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <unordered_set>
 
 #include "ecar_core/common/error.h"
 #include "ecar_core/slam/features.h"
@@ -79,6 +80,25 @@ std::vector<KeyFrameId> Map::bestCovisible(KeyFrameId id, size_t n, int min_weig
   std::vector<KeyFrameId> out;
   for (size_t i = 0; i < v.size() && i < n; ++i) out.push_back(v[i].second);
   return out;
+}
+
+int Map::covisibilityHops(KeyFrameId a, KeyFrameId b, int max_hops) const {
+  if (!keyframe(a) || !keyframe(b)) return max_hops + 1;
+  if (a == b) return 0;
+  std::vector<KeyFrameId> frontier = {a}, next;
+  std::unordered_set<KeyFrameId> seen = {a};
+  for (int hops = 1; hops <= max_hops && !frontier.empty(); ++hops) {
+    next.clear();
+    for (const KeyFrameId f : frontier) {
+      for (const auto& [n, weight] : keyframe(f)->covisibility) {
+        if (weight < 1 || !keyframes_.count(n) || !seen.insert(n).second) continue;
+        if (n == b) return hops;
+        next.push_back(n);
+      }
+    }
+    frontier.swap(next);
+  }
+  return max_hops + 1;
 }
 
 KeyFrameId Map::addKeyFrame(KeyFrame kf) {

@@ -102,6 +102,10 @@ class Map {
   static constexpr size_t kMaxReplacements = 1 << 16;
   /// The `n` neighbours sharing the most points (at least `min_weight`), best first.
   std::vector<KeyFrameId> bestCovisible(KeyFrameId id, size_t n, int min_weight = 1) const;
+  /// The fewest covisibility links (keyframes sharing points) from `a` to
+  /// `b`: 0 when they are one, 1 when they share points; max_hops + 1 when
+  /// farther (or either is missing). Breadth-first, at most max_hops deep.
+  int covisibilityHops(KeyFrameId a, KeyFrameId b, int max_hops) const;
   /// Epoch of the map: changes on reset/load (devices drop what they hold).
   uint32_t epoch() const { return epoch_; }
   bool initialized() const { return !keyframes_.empty(); }

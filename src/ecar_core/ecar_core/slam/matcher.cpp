@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "ecar_core/slam/descriptor_block.h"
 #include "ecar_core/slam/features.h"
 
 namespace ecar {
@@ -203,23 +204,24 @@ int searchByDescriptor(const Frame& frame, const std::vector<PointSample>& point
   if (match_point_index && match_point_index->size() != frame.size()) {
     match_point_index->assign(frame.size(), -1);
   }
+  // The free keypoints, laid out for the one-against-many search.
+  std::vector<int> free_rows;
+  free_rows.reserve(frame.size());
+  DescriptorBlock block;
+  block.reserve(frame.size());
+  for (size_t i = 0; i < frame.size(); ++i) {
+    if ((*matches)[i].valid()) continue;
+    free_rows.push_back(static_cast<int>(i));
+    block.push_back(frame.descriptors.ptr<uint8_t>(static_cast<int>(i)));
+  }
   std::vector<int> best_dist(frame.size(), std::numeric_limits<int>::max());
   std::vector<int> owner(frame.size(), -1);
   for (size_t pi = 0; pi < points.size(); ++pi) {
-    int best = std::numeric_limits<int>::max(), second = best, best_idx = -1;
-    for (size_t i = 0; i < frame.size(); ++i) {
-      if ((*matches)[i].valid()) continue;
-      const int d =
-          descriptorDistance(points[pi].descriptor.data(), frame.descriptors.ptr<uint8_t>(i));
-      if (d < best) {
-        second = best;
-        best = d;
-        best_idx = static_cast<int>(i);
-      } else if (d < second) {
-        second = d;
-      }
+    const DescriptorBlock::Nearest n = block.nearest(points[pi].descriptor.data());
+    if (n.index < 0 || n.distance > kDescriptorThresholdLow || n.distance > ratio * n.second) {
+      continue;
     }
-    if (best_idx < 0 || best > kDescriptorThresholdLow || best > ratio * second) continue;
+    const int best = n.distance, best_idx = free_rows[n.index];
     if (best < best_dist[best_idx]) {
       best_dist[best_idx] = best;
       owner[best_idx] = static_cast<int>(pi);

@@ -3,6 +3,7 @@
 #include <array>
 #include <cstring>
 
+#include "ecar_core/slam/descriptor_block.h"
 #include "ecar_core/slam/features.h"
 #include "ecar_core/slam/matcher.h"
 #include "ecar_core/slam/sim3_solver.h"
@@ -10,11 +11,11 @@
 namespace ecar {
 namespace {
 
-/// A match-side point as the matching sees it; copied out of the map.
+/// A match-side point as the matching sees it; copied out of the map (its
+/// descriptor goes to the search block, at the same index).
 struct Target {
   MapPointId id;
   Eigen::Vector3d p_w;
-  std::array<uint8_t, 32> descriptor;
 };
 
 /// A query-side point with the descriptor of the keypoint that saw it.
@@ -32,6 +33,7 @@ std::optional<PlaceMatch> verifyPlace(const Map& query_map, KeyFrameId query, co
                                       const std::unordered_set<KeyFrameId>& excluded,
                                       const LoopClosingConfig& c, bool fix_scale, uint32_t seed) {
   std::vector<Target> targets;
+  DescriptorBlock target_descriptors;
   size_t candidate_targets = 0;  // targets[0, candidate_targets): the candidate's own points
   std::unordered_set<MapPointId> target_ids;
   Eigen::Vector3d centre;
@@ -48,9 +50,8 @@ std::optional<PlaceMatch> verifyPlace(const Map& query_map, KeyFrameId query, co
       for (const MapPointId pid : match_map.keyframe(id)->points) {
         const MapPoint* p = match_map.point(pid);
         if (!p || p->descriptor.empty() || !target_ids.insert(pid).second) continue;
-        Target t{pid, p->p_w, {}};
-        std::memcpy(t.descriptor.data(), p->descriptor.ptr<uint8_t>(0), 32);
-        targets.push_back(t);
+        targets.push_back({pid, p->p_w});
+        target_descriptors.push_back(p->descriptor.ptr<uint8_t>(0));
       }
       if (id == candidate) candidate_targets = targets.size();
     }
@@ -81,19 +82,9 @@ std::optional<PlaceMatch> verifyPlace(const Map& query_map, KeyFrameId query, co
   }
   // The nearest of targets[0, end) to a source passing the ratio test, or -1.
   const auto nearest = [&](const Source& source, size_t end) {
-    int best = 256, second = 256, best_index = -1;
-    for (size_t t = 0; t < end; ++t) {
-      const int dist = descriptorDistance(source.descriptor.data(), targets[t].descriptor.data());
-      if (dist < best) {
-        second = best;
-        best = dist;
-        best_index = static_cast<int>(t);
-      } else if (dist < second) {
-        second = dist;
-      }
-    }
-    return best_index >= 0 && best <= kDescriptorThresholdLow && best < c.ratio * second
-               ? best_index
+    const DescriptorBlock::Nearest n = target_descriptors.nearest(source.descriptor.data(), end);
+    return n.index >= 0 && n.distance <= kDescriptorThresholdLow && n.distance < c.ratio * n.second
+               ? n.index
                : -1;
   };
   if (c.min_candidate_matches > 0) {

@@ -60,6 +60,21 @@ struct LoopClosingConfig {
   double odometry_min_drift = 0.03;
   double odometry_max_drift = 1.0;
   int odometry_min_inliers = 50;
+  /// ... and the keyframes before and after the gap are at least
+  /// odometry_min_hops covisibility links apart (Map::covisibilityHops),
+  /// with the disagreement at most odometry_max_drift_per_link per link.
+  /// Drift accumulates along the map between the two places: keyframes a few
+  /// links apart are held together by shared points, and a large
+  /// disagreement there is a wrong relocalisation, not drift. With twenty
+  /// devices in the corridor and the atlas (E2's 20-device point,
+  /// 2026-12-08), devices relocalised at their walk's last turn 0.5-0.9 m
+  /// off (periodic texture) and "closed" loops 3-5 links apart (0.88 m at
+  /// 3, 0.71 at 4, 0.52 and 0.55 at 5), moving a map whose every trajectory
+  /// fitted the truth within 0.7 cm by up to 1.3 m under every device; the
+  /// corridor walked back (six corridor devices offline) closes its real
+  /// loop, 5.1 cm across 5 links (1 cm per link against 10-29 for those).
+  int odometry_min_hops = 3;
+  double odometry_max_drift_per_link = 0.02;
 };
 
 struct SlamConfig {

@@ -10,6 +10,7 @@
 #include "ecar_core/common/error.h"
 #include "ecar_core/sim/motion.h"
 #include "ecar_core/sim/renderer.h"
+#include "ecar_core/slam/place_verification.h"
 #include "ecar_core/slam/pose_graph.h"
 #include "ecar_core/slam/seam_refit.h"
 #include "ecar_core/slam/slam_system.h"
@@ -265,6 +266,76 @@ TEST(SeamRefitTest, NotAppliedWithoutASeamOrWhenTheCorrectionIsLarge) {
     EXPECT_FALSE(m.refit(false).applied);
     EXPECT_DOUBLE_EQ(m.twinError().first, before.first);  // nothing moved
   }
+}
+
+// Place verification's quick rejection (LoopClosingConfig::min_candidate_matches):
+// a keyframe of one map and its twin in the other map's copy (another frame,
+// scale and ids) are the same place. It is verified with the check off and at
+// its default with the same similarity and inliers, through the twins' points;
+// the check counts the query keyframe's own points matched to the candidate's
+// own, so a threshold one above that count rejects the place.
+TEST(PlaceVerificationTest, QuickRejectionKeepsTheTruePlaceAndRejectsAboveItsOwnMatches) {
+  const std::unique_ptr<SlamSystem> slam = corridorMap();
+  const Map& a = slam->map();
+  Sim3 T;
+  T.scale = 1.7;
+  T.R = expSO3(Eigen::Vector3d(0.2, -0.1, 1.3));
+  T.t = Eigen::Vector3d(4.0, -2.0, 0.5);
+  const uint32_t offset = 100000;
+  std::unique_ptr<Map> b;
+  KeyFrameId candidate;
+  int tracked = 0;
+  {
+    auto lock = a.readLock();
+    b = copyOf(a, offset, T);
+    const std::vector<KeyFrameId> ids = a.keyframeIds();
+    ASSERT_GE(ids.size(), 5u);
+    candidate = ids[ids.size() / 2];
+    tracked = a.keyframe(candidate)->numTrackedPoints();
+  }
+  const KeyFrameId query(candidate.value + offset);
+  const Sim3 S_true = T.inverse();  // b's world -> a's world
+
+  LoopClosingConfig off;
+  off.min_candidate_matches = 0;
+  const LoopClosingConfig standard;
+  ASSERT_GT(standard.min_candidate_matches, 0);
+  const auto without = verifyPlace(*b, query, a, candidate, {}, off, false, 1);
+  const auto with = verifyPlace(*b, query, a, candidate, {}, standard, false, 1);
+  ASSERT_TRUE(without.has_value());
+  ASSERT_TRUE(with.has_value());
+  EXPECT_EQ(with->inliers, without->inliers);
+  EXPECT_EQ(with->duplicates, without->duplicates);
+  EXPECT_GE(with->inliers, standard.min_inliers);
+  EXPECT_LT(rotationAngle(with->S.R.transpose() * S_true.R) * 180.0 / M_PI, 0.5);
+  EXPECT_NEAR(with->S.scale / S_true.scale, 1.0, 0.01);
+  // Nearly every inlier pair is a point and its own twin.
+  size_t twins = 0;
+  for (const auto& [q, m] : with->duplicates) twins += q.value == m.value + offset;
+  EXPECT_GE(twins, with->duplicates.size() * 9 / 10);
+
+  // The largest threshold that still verifies is the count of own-point
+  // matches (accepted iff count >= threshold): find it by bisection.
+  LoopClosingConfig c;
+  int accepted = standard.min_candidate_matches, rejected = tracked + 1;
+  c.min_candidate_matches = rejected;
+  EXPECT_FALSE(verifyPlace(*b, query, a, candidate, {}, c, false, 1).has_value());
+  while (rejected - accepted > 1) {
+    c.min_candidate_matches = (accepted + rejected) / 2;
+    if (verifyPlace(*b, query, a, candidate, {}, c, false, 1)) {
+      accepted = c.min_candidate_matches;
+    } else {
+      rejected = c.min_candidate_matches;
+    }
+  }
+  // A true place's keyframes share many points (79 and 131 on the logged runs).
+  EXPECT_GE(accepted, 40);
+  c.min_candidate_matches = accepted;
+  const auto at = verifyPlace(*b, query, a, candidate, {}, c, false, 1);
+  ASSERT_TRUE(at.has_value());
+  EXPECT_EQ(at->inliers, without->inliers);
+  RecordProperty("own_point_matches", accepted);
+  std::printf("own-point matches %d of %d tracked; %d inliers\n", accepted, tracked, with->inliers);
 }
 
 }  // namespace

@@ -42,6 +42,37 @@ TEST_F(MapTest, ObservationsAreRecordedOnBothSides) {
   EXPECT_EQ(map.keyframe(k2)->covisibility.at(k1), 1);
 }
 
+TEST_F(MapTest, CovisibilityHopsCountTheLinksOfTheShortestChain) {
+  // A chain k1 - k2 - k3 - k4 (each pair shares a point), and k5 alone.
+  auto lock = map.writeLock();
+  const KeyFrameId k3 = map.addKeyFrame(keyframeWith(10));
+  const KeyFrameId k4 = map.addKeyFrame(keyframeWith(10));
+  const KeyFrameId k5 = map.addKeyFrame(keyframeWith(10));
+  const std::vector<std::pair<KeyFrameId, KeyFrameId>> links = {{k1, k2}, {k2, k3}, {k3, k4}};
+  int row = 0;
+  for (const auto& [a, b] : links) {
+    const MapPointId p = map.addPoint(Eigen::Vector3d(0, 0, 2), a);
+    map.addObservation(p, a, row);
+    map.addObservation(p, b, row + 1);
+    row += 2;
+  }
+  for (const KeyFrameId k : {k1, k2, k3, k4}) map.updateCovisibility(k);
+  EXPECT_EQ(map.covisibilityHops(k1, k1, 3), 0);
+  EXPECT_EQ(map.covisibilityHops(k1, k2, 3), 1);
+  EXPECT_EQ(map.covisibilityHops(k1, k3, 3), 2);
+  EXPECT_EQ(map.covisibilityHops(k4, k1, 3), 3);
+  EXPECT_EQ(map.covisibilityHops(k1, k4, 2), 3);  // farther than searched: max_hops + 1
+  EXPECT_EQ(map.covisibilityHops(k1, k5, 10), 11);
+  EXPECT_EQ(map.covisibilityHops(k1, KeyFrameId(999), 3), 4);
+  // A shortcut k1 - k4 makes them neighbours.
+  const MapPointId q = map.addPoint(Eigen::Vector3d(0, 0, 2), k1);
+  map.addObservation(q, k1, 9);
+  map.addObservation(q, k4, 9);
+  map.updateCovisibility(k1);
+  EXPECT_EQ(map.covisibilityHops(k1, k4, 3), 1);
+  EXPECT_EQ(map.covisibilityHops(k2, k4, 3), 2);
+}
+
 TEST_F(MapTest, ObservingAgainAtAnotherKeypointMovesTheObservation) {
   auto lock = map.writeLock();
   const MapPointId p = map.addPoint(Eigen::Vector3d(0, 0, 2), k1);

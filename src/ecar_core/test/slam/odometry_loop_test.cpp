@@ -67,6 +67,19 @@ std::vector<MotionSample>* OdometryLoopTest::motion_ = nullptr;
 SlamSystem* OdometryLoopTest::slam_ = nullptr;
 TrackResult OdometryLoopTest::last_;
 
+// A made-up odometry loop: the device's odometry puts it 10 cm below where
+// it relocalised (at `after`, lost after `before`).
+OdometryLoop tenCentimetresUp(KeyFrameId before, KeyFrameId after) {
+  OdometryLoop loop;
+  loop.device = DeviceId(1);
+  loop.before = before;
+  loop.after = after;
+  loop.G.translation() = Eigen::Vector3d(0.0, 0.0, 0.1);
+  loop.drift_m = 0.1;
+  loop.inliers = 80;
+  return loop;
+}
+
 TEST_F(OdometryLoopTest, ARelocalisationTheOdometryContradictsIsReportedAsALoop) {
   ASSERT_EQ(last_.state, TrackingState::kOk);
   ASSERT_TRUE(slam_->map().metric());
@@ -106,10 +119,14 @@ TEST_F(OdometryLoopTest, ARelocalisationTheOdometryContradictsIsReportedAsALoop)
 }
 
 TEST_F(OdometryLoopTest, TheClosedLoopMovesThePlaceLeftBehindAndKeepsTheOther) {
-  // A closer that counts only the 2 best neighbours as the same place (the
-  // real corridor's two legs share none), without the global BA, which would
-  // move the made-up correction back to what the images say.
+  // A made-up 10 cm loop across this short walk (its keyframes a few
+  // covisibility links apart: 10 cm is more than real drift across them),
+  // so the closer allows any disagreement per link, and moves only the 2 best
+  // neighbours with the place left behind (the real corridor's two legs share
+  // none); without the global BA, which would move the made-up correction
+  // back to what the images say.
   SlamConfig config;
+  config.loops.odometry_max_drift_per_link = 1.0;
   config.loops.covisible_excluded = 2;
   config.loops.global_ba = false;
   PlaceIndex unused(config.place);
@@ -129,13 +146,7 @@ TEST_F(OdometryLoopTest, TheClosedLoopMovesThePlaceLeftBehindAndKeepsTheOther) {
     c_middle = slam_->map().keyframe(middle)->center();
   }
   LoopCloser closer(&slam_->map(), &unused, config);
-  OdometryLoop loop;
-  loop.device = DeviceId(1);
-  loop.before = before;
-  loop.after = after;
-  loop.G.translation() = Eigen::Vector3d(0.0, 0.0, 0.1);
-  loop.drift_m = 0.1;
-  loop.inliers = 80;
+  const OdometryLoop loop = tenCentimetresUp(before, after);
   closer.closeByOdometry(loop);
   const std::vector<LoopClosure> closures = closer.closures();
   ASSERT_EQ(closures.size(), 1u);
@@ -157,6 +168,46 @@ TEST_F(OdometryLoopTest, TheClosedLoopMovesThePlaceLeftBehindAndKeepsTheOther) {
   EXPECT_LT(middle_z, moved.z());
   EXPECT_LT((slam_->map().keyframe(after)->center() - c_after).norm(), 1e-6);
   EXPECT_EQ(slam_->map().checkConsistency(), "");
+}
+
+// Keyframes two covisibility links apart (no point in common, but both share
+// points with a third) are held together by the map: the odometry's 10 cm
+// disagreement there is a wrong relocalisation, and the closer drops it
+// (LoopClosingConfig::odometry_min_hops 3). Allowed two links, it still drops
+// it at 2 cm per link (4 cm across two), and closes it at 6 cm per link.
+TEST_F(OdometryLoopTest, AGapBetweenKeyframesTwoLinksApartIsNoLoop) {
+  std::vector<KeyFrameId> ids;
+  KeyFrameId before, after;
+  {
+    auto lock = slam_->map().readLock();
+    ids = slam_->map().keyframeIds();
+    std::sort(ids.begin(), ids.end());
+    before = ids.back();
+    for (const KeyFrameId id : ids) {
+      if (slam_->map().covisibilityHops(before, id, 3) == 2) after = id;
+    }
+  }
+  ASSERT_TRUE(after.valid()) << "no keyframe two links from the last";
+  const OdometryLoop loop = tenCentimetresUp(before, after);
+  SlamConfig config;
+  config.loops.global_ba = false;
+  PlaceIndex unused(config.place);
+  ASSERT_EQ(config.loops.odometry_min_hops, 3);
+  ASSERT_DOUBLE_EQ(config.loops.odometry_max_drift_per_link, 0.02);
+  const auto closures = [&](const SlamConfig& c) {
+    LoopCloser closer(&slam_->map(), &unused, c);
+    closer.closeByOdometry(loop);
+    return closer.closures();
+  };
+  EXPECT_TRUE(closures(config).empty());
+  config.loops.odometry_min_hops = 2;
+  EXPECT_TRUE(closures(config).empty());
+  config.loops.odometry_max_drift_per_link = 0.06;
+  const std::vector<LoopClosure> closed = closures(config);
+  ASSERT_EQ(closed.size(), 1u);
+  EXPECT_EQ(closed[0].match, after);
+  EXPECT_EQ(closed[0].links, 2);
+  EXPECT_DOUBLE_EQ(closed[0].odometry_disagreement_m, 0.1);
 }
 
 }  // namespace

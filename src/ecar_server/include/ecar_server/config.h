@@ -84,7 +84,12 @@ struct ServerConfig {
   /// at most loop_odometry_max_gap s after it was lost (LoopClosingConfig).
   bool loop_by_odometry = true;
   double loop_odometry_max_gap = 3.0;  ///< s, in (0, 60]
-  int background_nice = 5;             ///< niceness added to local mapping and loop closing (0..19)
+  /// ... between keyframes at least this many covisibility links apart
+  /// (closer ones share points: a wrong relocalisation, not drift), in [1, 20],
+  /// off by at most loop_odometry_max_drift_per_link m per link, in (0, 1].
+  int loop_odometry_min_hops = 3;
+  double loop_odometry_max_drift_per_link = 0.02;
+  int background_nice = 5;  ///< niceness added to local mapping and loop closing (0..19)
   /// Atlas: several maps (a device that matches no map starts its own at
   /// once), merged when they overlap; false: every device joins the first map.
   bool several_maps = false;
@@ -92,7 +97,8 @@ struct ServerConfig {
   int new_map_after_lost = 8;
   /// Atlas: merge maps that overlap (place recognition on every new keyframe,
   /// and a relocalisation probe into another map, one per probe in turn,
-  /// every merge_probe_every tracked uploads of a device; 0: no probes).
+  /// by one of every merge_probe_every uploads tracked in a map, of all its
+  /// devices together; 0: no probes).
   bool merge_maps = true;
   int merge_probe_every = 2;
   /// Atlas: the global bundle adjustment after a merge runs on a background
