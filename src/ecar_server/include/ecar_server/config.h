@@ -88,7 +88,7 @@ struct ServerConfig {
   /// (closer ones share points: a wrong relocalisation, not drift), in [1, 20],
   /// off by at most loop_odometry_max_drift_per_link m per link, in (0, 1].
   int loop_odometry_min_hops = 3;
-  double loop_odometry_max_drift_per_link = 0.02;
+  double loop_odometry_max_drift_per_link = 0.04;
   int background_nice = 5;  ///< niceness added to local mapping and loop closing (0..19)
   /// Atlas: several maps (a device that matches no map starts its own at
   /// once), merged when they overlap; false: every device joins the first map.
