@@ -223,6 +223,7 @@ void DescriptorBlock::push_back(const uint8_t* descriptor) {
 DescriptorBlock::Nearest DescriptorBlock::nearest(const uint8_t* query, size_t end,
                                                   Kernel kernel) const {
   end = std::min(end, size_);
+  kernel = std::min(kernel, bestKernel());
   uint64_t q[4];
   std::memcpy(q, query, sizeof(q));
   switch (kernel) {

@@ -47,7 +47,8 @@ class DescriptorBlock {
   /// The nearest of descriptors [0, end) (end <= size()) to `query` (32 bytes).
   Nearest nearest(const uint8_t* query, size_t end) const { return nearest(query, end, kernel_); }
   Nearest nearest(const uint8_t* query) const { return nearest(query, size_, kernel_); }
-  /// With a given kernel (tests compare them); the CPU must support it.
+  /// With a given kernel (tests compare them); one this CPU does not run
+  /// falls back to bestKernel().
   Nearest nearest(const uint8_t* query, size_t end, Kernel kernel) const;
 
  private:
