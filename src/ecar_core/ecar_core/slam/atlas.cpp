@@ -324,10 +324,10 @@ TrackResult Atlas::track(DeviceId device, const cv::Mat& image, double timestamp
           const auto after_last = [&](MapId id) {
             return std::make_pair(id.value <= last.value, id.value);  // smaller: sooner
           };
-          for (const auto& o : others) {
-            if (probe && initialised(*o.second) &&
-                (!target || after_last(o.first) < after_last(target->first))) {
-              target = &o;
+          if (probe) {
+            for (const auto& o : others) {
+              if (!initialised(*o.second)) continue;
+              if (!target || after_last(o.first) < after_last(target->first)) target = &o;
             }
           }
           if (target) {
